@@ -1,0 +1,1 @@
+//! Experience map (SPEC §8): vertices, odometric links, loop closure and map correction.
