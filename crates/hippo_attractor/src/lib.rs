@@ -2,10 +2,31 @@
 //! Zeng, Li & Si ("Bayesian Integration of Multi-resolutional Grid Codes for Spatial Cognition"), as fixed
 //! by `SPEC.md`.
 //!
-//! - [`fusion`]: Bayesian (precision-weighted) fusion of the grid modules' bumps (SPEC §4).
+//! - [`hd`]: head-direction-by-velocity ring (SPEC §2), exact rank-2 recurrent input.
+//! - [`grid`]: grid-by-velocity tori with k = 1, 2, 4 bumps per axis (SPEC §3), per-slice FFTs.
+//! - [`place`]: CA3 place torus (SPEC §5).
+//! - [`decode`], [`fusion`]: bump decoding and Bayesian fusion (SPEC §4).
+//! - [`spatial_memory`]: the whole network stepped per camera frame, with lesions and view injection.
+//! - [`dynamics`]: the integrator (implicit global inhibition, exact leak).
+//! - [`reference`]: dense-weight reference implementations, for tests and benchmarks only.
+pub mod check;
 pub mod circular;
+pub mod decode;
+pub mod dynamics;
 pub mod error;
+pub mod fft2;
 pub mod fusion;
+pub mod grid;
+pub mod hd;
+pub mod place;
+pub mod real;
+pub mod reference;
+pub mod spatial_memory;
 
 pub use error::{AttractorError, Result};
 pub use fusion::{fuse_bumps, fuse_homocentric, Bump2, FusedEstimate};
+pub use grid::{GridModule, GridParams};
+pub use hd::{HdParams, HdReadout, HdRing};
+pub use place::{PlaceNetwork, PlaceParams};
+pub use real::Real;
+pub use spatial_memory::{ModuleReadout, SpatialMemory, SpatialMemoryParams, SpatialReadout, ViewInjection};

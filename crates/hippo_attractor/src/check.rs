@@ -1,0 +1,102 @@
+//! Parameter and input validation shared by the networks.
+use crate::error::{AttractorError, Result};
+
+pub fn positive(name: &'static str, value: f64) -> Result<()> {
+    if value.is_finite() && value > 0.0 {
+        Ok(())
+    } else {
+        Err(AttractorError::BadParameter {
+            name,
+            value: value.to_string(),
+            why: "must be finite and > 0".into(),
+        })
+    }
+}
+
+pub fn finite(name: &'static str, value: f64) -> Result<()> {
+    if value.is_finite() {
+        Ok(())
+    } else {
+        Err(AttractorError::BadParameter {
+            name,
+            value: value.to_string(),
+            why: "must be finite".into(),
+        })
+    }
+}
+
+pub fn non_positive(name: &'static str, value: f64) -> Result<()> {
+    if value.is_finite() && value <= 0.0 {
+        Ok(())
+    } else {
+        Err(AttractorError::BadParameter {
+            name,
+            value: value.to_string(),
+            why: "must be finite and ≤ 0 (it is the uniform inhibition)".into(),
+        })
+    }
+}
+
+pub fn in_unit_interval(name: &'static str, value: f64) -> Result<()> {
+    if value.is_finite() && (0.0..=1.0).contains(&value) {
+        Ok(())
+    } else {
+        Err(AttractorError::BadParameter {
+            name,
+            value: value.to_string(),
+            why: "must lie in [0, 1]".into(),
+        })
+    }
+}
+
+pub fn size(name: &'static str, value: usize, min: usize, max: usize) -> Result<()> {
+    if (min..=max).contains(&value) {
+        Ok(())
+    } else {
+        Err(AttractorError::BadParameter {
+            name,
+            value: value.to_string(),
+            why: format!("must be between {min} and {max}"),
+        })
+    }
+}
+
+pub fn input(name: &'static str, value: f64) -> Result<()> {
+    if value.is_finite() {
+        Ok(())
+    } else {
+        Err(AttractorError::NonFinite { name, value })
+    }
+}
+
+pub fn array_len(name: &'static str, got: usize, expected: usize, shape: String) -> Result<()> {
+    if got == expected {
+        Ok(())
+    } else {
+        Err(AttractorError::BadShape { name, got, expected, shape })
+    }
+}
+
+pub fn array_finite<T: crate::real::Real>(name: &'static str, values: &[T]) -> Result<()> {
+    match values.iter().position(|v| !v.is_finite()) {
+        Some(index) => Err(AttractorError::NonFiniteArray { name, index }),
+        None => Ok(()),
+    }
+}
+
+/// `n` evenly spaced velocity-axis values on `[−max, max]` (a single 0 when n = 1).
+pub fn velocity_axis(n: usize, max: f64) -> Vec<f64> {
+    if n == 1 {
+        return vec![0.0];
+    }
+    (0..n)
+        .map(|j| -max + 2.0 * max * j as f64 / (n - 1) as f64)
+        .collect()
+}
+
+/// `n` evenly spaced angles on `[0, 2π)`.
+pub fn angle_axis(n: usize) -> Vec<f64> {
+    (0..n)
+        .map(|i| std::f64::consts::TAU * i as f64 / n as f64)
+        .collect()
+}

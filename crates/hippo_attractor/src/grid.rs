@@ -1,0 +1,341 @@
+//! Grid-by-velocity torus attractor (SPEC §3): units on `(θx, θy) ∈ [0, 2π)²` (N×N) × `(νx, νy) ∈ [−L, L]²`
+//! (M×M). Module `k` has `k` bumps per axis (`k²` on the torus).
+//!
+//! Weights `J = J0 + Jk cos(k·|wrap(θ − θ' − ν')|) · cos(λ|ν − ν'|)` with `h = (1/(N²M²)) Σ J m`.
+//! The `Jk` term is translation invariant in θ with a shift that depends only on the presynaptic velocity
+//! `ν'`, so for each presynaptic velocity slice it is an exact circular convolution over θ (the kernel has a
+//! kink at ±π, so each slice gets its own precomputed kernel spectrum — a phase ramp would not be exact),
+//! followed by a dense mixing over velocity: `h(·, ν) = Σ_ν' cos(λ|ν − ν'|) · (K_ν' ⊛ m_ν')`.
+//! Silent slices (all zero, the usual case away from the bump's velocity) are skipped: still exact.
+//! Layout: `m[s·N² + iy·N + ix]` with velocity slice `s = jy·M + jx`.
+use crate::check;
+use crate::circular::wrap;
+use crate::dynamics::{self, step_with_implicit_inhibition};
+use crate::error::{AttractorError, Result};
+use crate::fft2::RealFft2;
+use crate::real::Real;
+use rayon::prelude::*;
+use rustfft::num_complex::Complex;
+use serde::{Deserialize, Serialize};
+use std::f64::consts::TAU;
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct GridParams {
+    /// Wave number k: bumps per torus axis (1, 2, 4 in the paper).
+    pub k: usize,
+    /// Units per torus axis (N).
+    pub n_theta: usize,
+    /// Units per velocity axis (M).
+    pub n_nu: usize,
+    /// Half-range `L_t` of each velocity axis (neural units).
+    pub nu_max: f64,
+    /// Velocity-tuning spread λ of the weights.
+    pub lambda: f64,
+    /// Uniform inhibition `J0 < 0`.
+    pub j0: f64,
+    /// Interaction strength `Jk > 0`.
+    pub jk: f64,
+    /// Velocity input amplitude `I_t`.
+    pub input_amp: f64,
+    /// Velocity tuning strength `ε ∈ [0, 1]`.
+    pub input_tuning: f64,
+    /// Velocity tuning width `σ_t` (neural units).
+    pub input_sigma: f64,
+    /// Gain of the velocity-pinning feedback (0 disables it; see `step`).
+    pub pin_gain: f64,
+}
+
+impl GridParams {
+    /// Documented defaults for module `k` (see docs/model.md for how they were chosen).
+    pub fn for_module(k: usize) -> Self {
+        let nu_max = 0.06;
+        Self {
+            k,
+            n_theta: 64,
+            n_nu: 9,
+            nu_max,
+            lambda: std::f64::consts::PI / (4.0 * nu_max),
+            j0: -6000.0,
+            jk: 3000.0,
+            input_amp: 1.0,
+            input_tuning: 0.5,
+            input_sigma: 0.5 * nu_max,
+            pin_gain: 0.3,
+        }
+    }
+
+    pub fn validate(&self) -> Result<()> {
+        check::size("grid.k", self.k, 1, 16)?;
+        check::size("grid.n_theta", self.n_theta, 4, 1024)?;
+        check::size("grid.n_nu", self.n_nu, 1, 64)?;
+        check::positive("grid.nu_max", self.nu_max)?;
+        check::positive("grid.lambda", self.lambda)?;
+        check::non_positive("grid.j0", self.j0)?;
+        check::positive("grid.jk", self.jk)?;
+        check::positive("grid.input_amp", self.input_amp)?;
+        check::in_unit_interval("grid.input_tuning", self.input_tuning)?;
+        check::positive("grid.input_sigma", self.input_sigma)?;
+        check::in_unit_interval("grid.pin_gain", self.pin_gain)?;
+        Ok(())
+    }
+
+    pub fn n_slices(&self) -> usize {
+        self.n_nu * self.n_nu
+    }
+
+    pub fn n_units(&self) -> usize {
+        self.n_theta * self.n_theta * self.n_slices()
+    }
+
+    /// The θ part of the weight: `cos(k·|wrap(Δθ − ν')|)`.
+    pub fn theta_kernel(&self, dtheta: [f64; 2], nu_pre: [f64; 2]) -> f64 {
+        let dx = wrap(dtheta[0] - nu_pre[0]);
+        let dy = wrap(dtheta[1] - nu_pre[1]);
+        (self.k as f64 * dx.hypot(dy)).cos()
+    }
+
+    /// The velocity part of the weight: `cos(λ|ν − ν'|)`.
+    pub fn nu_kernel(&self, nu_post: [f64; 2], nu_pre: [f64; 2]) -> f64 {
+        (self.lambda * (nu_post[0] - nu_pre[0]).hypot(nu_post[1] - nu_pre[1])).cos()
+    }
+}
+
+pub struct GridModule<T: Real> {
+    params: GridParams,
+    nu: Vec<f64>,
+    fft: RealFft2<T>,
+    /// One kernel spectrum per presynaptic velocity slice.
+    kernel_spectra: Vec<Vec<Complex<T>>>,
+    /// `cos(λ|ν_s − ν_s'|)`, s and s' velocity slices.
+    nu_mix: Vec<T>,
+    m: Vec<T>,
+    drive: Vec<T>,
+    /// Last solved mean activity (warm start of the implicit solve).
+    mean_guess: f64,
+    conv: Vec<T>,
+    /// Integral term of the velocity-pinning loop (neural units).
+    pin_bias: [f64; 2],
+}
+
+impl<T: Real> GridModule<T> {
+    pub fn new(params: GridParams) -> Result<Self> {
+        params.validate()?;
+        let n = params.n_theta;
+        let nu = check::velocity_axis(params.n_nu, params.nu_max);
+        let fft = RealFft2::<T>::new(n);
+        let slices = slice_velocities(&nu);
+        let kernel_spectra = slices
+            .par_iter()
+            .map(|&v| {
+                fft.kernel_spectrum(|dx, dy| {
+                    params.theta_kernel([TAU * dx as f64 / n as f64, TAU * dy as f64 / n as f64], v)
+                })
+            })
+            .collect();
+        let nu_mix = slices
+            .iter()
+            .flat_map(|&a| slices.iter().map(move |&b| (a, b)))
+            .map(|(a, b)| T::of(params.nu_kernel(a, b)))
+            .collect();
+        let units = params.n_units();
+        let mut module = Self {
+            nu,
+            fft,
+            kernel_spectra,
+            nu_mix,
+            m: vec![T::zero(); units],
+            mean_guess: 0.0,
+            drive: vec![T::zero(); units],
+            conv: vec![T::zero(); units],
+            pin_bias: [0.0; 2],
+            params,
+        };
+        module.seed([0.0, 0.0]);
+        Ok(module)
+    }
+
+    pub fn params(&self) -> &GridParams {
+        &self.params
+    }
+
+    pub fn activity(&self) -> &[T] {
+        &self.m
+    }
+
+    pub fn shape(&self) -> String {
+        let (n, m) = (self.params.n_theta, self.params.n_nu);
+        format!("(n_nu_y={m}, n_nu_x={m}, n_theta_y={n}, n_theta_x={n})")
+    }
+
+    pub fn set_activity(&mut self, m: &[T]) -> Result<()> {
+        check::array_len("grid activity", m.len(), self.m.len(), self.shape())?;
+        check::array_finite("grid activity", m)?;
+        self.m.copy_from_slice(m);
+        Ok(())
+    }
+
+    pub fn nu_axis(&self) -> &[f64] {
+        &self.nu
+    }
+
+    /// Seed the lattice `k` bumps per axis with one bump at `phase_rad`, concentrated at zero velocity.
+    pub fn seed(&mut self, phase_rad: [f64; 2]) {
+        let n = self.params.n_theta;
+        self.pin_bias = [0.0; 2];
+        let k = self.params.k as f64;
+        let slices = slice_velocities(&self.nu);
+        let w = 0.5 * self.params.nu_max;
+        for (s, v) in slices.iter().enumerate() {
+            let g = (-(v[0] * v[0] + v[1] * v[1]) / (2.0 * w * w)).exp();
+            for iy in 0..n {
+                for ix in 0..n {
+                    let tx = TAU * ix as f64 / n as f64 - phase_rad[0];
+                    let ty = TAU * iy as f64 / n as f64 - phase_rad[1];
+                    let c = ((k * tx).cos() + 1.0) * ((k * ty).cos() + 1.0) * 0.25;
+                    self.m[s * n * n + iy * n + ix] = T::of(c.powi(4) * g);
+                }
+            }
+        }
+    }
+
+    /// Neural velocity target `u = (1/k) arctan(2π τ_eff V k / P)` per axis for a map-frame velocity.
+    pub fn velocity_target(
+        &self,
+        velocity_m_s: [f64; 2],
+        torus_period_m: f64,
+        tau_eff_s: f64,
+    ) -> Result<[f64; 2]> {
+        let k = self.params.k as f64;
+        let mut u = [0.0; 2];
+        for a in 0..2 {
+            check::input("velocity_m_s", velocity_m_s[a])?;
+            u[a] = (TAU * tau_eff_s * velocity_m_s[a] * k / torus_period_m).atan() / k;
+            if u[a].abs() > self.params.nu_max {
+                let vmax = (self.params.nu_max * k).tan() * torus_period_m / (TAU * tau_eff_s * k);
+                return Err(AttractorError::OutOfRange {
+                    name: "velocity_m_s",
+                    value: velocity_m_s[a],
+                    why: format!(
+                        "grid module k={} represents |V| ≤ {vmax:.1} m/s per axis with a {torus_period_m} m \
+                         torus at this step size; raise grid nu_max or torus_period_m",
+                        self.params.k
+                    ),
+                });
+            }
+        }
+        Ok(u)
+    }
+
+    /// Recurrent input without the uniform inhibition, into `out` (same layout as the state).
+    pub fn recurrent_input(&self, m: &[T], out: &mut [T]) {
+        let mut conv = vec![T::zero(); m.len()];
+        self.recurrent_input_with(m, out, &mut conv);
+    }
+
+    fn recurrent_input_with(&self, m: &[T], out: &mut [T], conv: &mut [T]) {
+        let n2 = self.params.n_theta * self.params.n_theta;
+        let ns = self.params.n_slices();
+        let scale = T::of(self.params.jk / (n2 * ns) as f64);
+        // 1. Per presynaptic slice: exact circular convolution with that slice's kernel.
+        let active: Vec<bool> = m.chunks(n2).map(|c| c.iter().any(|&x| x != T::zero())).collect();
+        conv.par_chunks_mut(n2)
+            .zip(m.par_chunks(n2))
+            .enumerate()
+            .for_each_init(
+                || self.fft.scratch(),
+                |scratch, (s, (out_s, m_s))| {
+                    if active[s] {
+                        self.fft.convolve(m_s, &self.kernel_spectra[s], out_s, scale, scratch)
+                    } else {
+                        out_s.iter_mut().for_each(|x| *x = T::zero());
+                    }
+                },
+            );
+        // 2. Mix over velocity, one GEMM: h(·, s) = Σ_s' cos(λ|ν_s − ν_s'|) conv_s'.
+        T::gemm(ns, ns, n2, &self.nu_mix, conv, out);
+    }
+
+    /// One integration step with velocity target `u` and an optional view input: a layer-II pattern (N²),
+    /// replicated along both velocity axes, already scaled by its injection strength.
+    ///
+    /// Velocity pinning: the bump moves at the activity-weighted mean velocity `ν̄` of its units, which the
+    /// recurrent velocity coupling pulls toward the sampled grid points of the velocity axis (with M = 9 a
+    /// bump can stall between slices at low speed). The input is therefore centred at `u + b`, where the
+    /// bias `b` integrates `pin_gain · (u − ν̄)`, so that `ν̄` follows the target on average — a calibration loop, not part of the
+    /// paper's model; `pin_gain = 0` gives the plain model.
+    pub fn step(&mut self, u: [f64; 2], view: Option<&[T]>, dt_s: f64, tau_s: f64) -> Result<()> {
+        let n2 = self.params.n_theta * self.params.n_theta;
+        let nu_bar = self.nu_position();
+        let lim = self.params.nu_max;
+        for a in 0..2 {
+            // Feed-forward target plus an integral correction (a PI loop without lag on velocity changes).
+            let bias = self.pin_bias[a] + self.params.pin_gain * (u[a] - nu_bar[a]);
+            self.pin_bias[a] = bias.clamp(-lim, lim);
+        }
+        let u = [
+            (u[0] + self.pin_bias[0]).clamp(-lim, lim),
+            (u[1] + self.pin_bias[1]).clamp(-lim, lim),
+        ];
+        let mut drive = std::mem::take(&mut self.drive);
+        let mut conv = std::mem::take(&mut self.conv);
+        self.recurrent_input_with(&self.m, &mut drive, &mut conv);
+        let p = &self.params;
+        let slices = slice_velocities(&self.nu);
+        let two_s2 = 2.0 * p.input_sigma * p.input_sigma;
+        drive.par_chunks_mut(n2).enumerate().for_each(|(s, d)| {
+            let v = slices[s];
+            let dist2 = (v[0] - u[0]).powi(2) + (v[1] - u[1]).powi(2);
+            let input =
+                T::of(p.input_amp * (1.0 - p.input_tuning + p.input_tuning * (-dist2 / two_s2).exp()));
+            match view {
+                Some(pattern) => d.iter_mut().zip(pattern).for_each(|(x, &w)| *x = *x + input + w),
+                None => d.iter_mut().for_each(|x| *x = *x + input),
+            }
+        });
+        let mean = step_with_implicit_inhibition(&mut self.m, &drive, p.j0, dynamics::decay(dt_s, tau_s), self.mean_guess);
+        self.mean_guess = mean;
+        self.drive = drive;
+        self.conv = conv;
+        if !mean.is_finite() {
+            return Err(AttractorError::Diverged);
+        }
+        Ok(())
+    }
+
+    /// Layer-II ("pure grid cell") pattern: the activity summed over both velocity axes (N², `[iy][ix]`).
+    pub fn layer2(&self) -> Vec<T> {
+        let n2 = self.params.n_theta * self.params.n_theta;
+        let mut p = vec![T::zero(); n2];
+        for slice in self.m.chunks(n2) {
+            for (a, &b) in p.iter_mut().zip(slice) {
+                *a = *a + b;
+            }
+        }
+        p
+    }
+
+    /// Activity-weighted mean position on the velocity axes (what sets the bump speed).
+    pub fn nu_position(&self) -> [f64; 2] {
+        let n2 = self.params.n_theta * self.params.n_theta;
+        let slices = slice_velocities(&self.nu);
+        let (mut sx, mut sy, mut total) = (0.0, 0.0, 0.0);
+        for (s, slice) in self.m.chunks(n2).enumerate() {
+            let w: f64 = slice.iter().map(|x| x.f64()).sum();
+            sx += w * slices[s][0];
+            sy += w * slices[s][1];
+            total += w;
+        }
+        if total > 0.0 {
+            [sx / total, sy / total]
+        } else {
+            [0.0, 0.0]
+        }
+    }
+}
+
+/// Velocity of each slice `s = jy·M + jx`: `(ν_jx, ν_jy)`.
+pub fn slice_velocities(nu: &[f64]) -> Vec<[f64; 2]> {
+    nu.iter()
+        .flat_map(|&vy| nu.iter().map(move |&vx| [vx, vy]))
+        .collect()
+}
