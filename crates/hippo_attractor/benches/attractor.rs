@@ -8,7 +8,7 @@ fn bench_fusion(c: &mut Criterion) {
     let mid: Vec<Bump2> = (0..4).map(|i| b(1.0 + i as f64 * 1.5, 0.5)).collect();
     let fine: Vec<Bump2> = (0..16).map(|i| b(1.0 + i as f64 * 0.4, 0.2)).collect();
     c.bench_function("fuse_homocentric_1_4_16", |bch| {
-        bch.iter(|| fuse_homocentric(black_box(&[&coarse, &mid, &fine])).unwrap())
+        bch.iter(|| fuse_homocentric(black_box(&[&coarse, &mid, &fine]), None).unwrap())
     });
 }
 

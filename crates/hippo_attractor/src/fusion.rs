@@ -53,17 +53,27 @@ pub fn fuse_bumps(bumps: &[Bump2]) -> Result<FusedEstimate> {
 
 /// Choose, from each finer module, the bump nearest (torus distance) to the running estimate and fuse.
 ///
-/// `modules[0]` must be the coarsest module (its strongest bump is the reference). A module with no bump
-/// (lesioned, or silent) is passed as an empty slice and simply leaves the fusion.
-pub fn fuse_homocentric(modules: &[&[Bump2]]) -> Result<(FusedEstimate, Vec<Bump2>)> {
+/// `modules[0]` must be the coarsest module. A module with no bump (lesioned, or silent) is passed as an
+/// empty slice and simply leaves the fusion. The reference is the coarsest present module's bump nearest to
+/// `prior` (the previous estimate, so that the code stays continuous when the coarsest module has several
+/// bumps, e.g. after a ventral lesion), or its strongest bump without a prior.
+pub fn fuse_homocentric(
+    modules: &[&[Bump2]],
+    prior: Option<[f64; 2]>,
+) -> Result<(FusedEstimate, Vec<Bump2>)> {
     let mut chosen: Vec<Bump2> = Vec::with_capacity(modules.len());
     for bumps in modules.iter().filter(|b| !b.is_empty()) {
         let pick = if chosen.is_empty() {
-            // The reference: the strongest bump of the coarsest module present.
-            *bumps
-                .iter()
-                .max_by(|a, b| a.mass.total_cmp(&b.mass))
-                .ok_or(AttractorError::NothingToFuse)?
+            match prior {
+                Some(p) => *bumps
+                    .iter()
+                    .min_by(|a, b| torus_distance(a.mean_rad, p).total_cmp(&torus_distance(b.mean_rad, p)))
+                    .ok_or(AttractorError::NothingToFuse)?,
+                None => *bumps
+                    .iter()
+                    .max_by(|a, b| a.mass.total_cmp(&b.mass))
+                    .ok_or(AttractorError::NothingToFuse)?,
+            }
         } else {
             let estimate = fuse_bumps(&chosen)?;
             *bumps
@@ -115,7 +125,7 @@ mod tests {
             bump(1.1, 0.9 + std::f64::consts::PI, 0.3, 0.3),
             bump(1.1 + std::f64::consts::PI, 0.9 + std::f64::consts::PI, 0.3, 0.3),
         ];
-        let (fused, chosen) = fuse_homocentric(&[&coarse, &mid]).unwrap();
+        let (fused, chosen) = fuse_homocentric(&[&coarse, &mid], None).unwrap();
         assert_eq!(chosen[1].mean_rad, [1.1, 0.9]);
         assert!(fused.std_rad[0] < 0.3);
         assert!((fused.mean_rad[0] - 1.1).abs() < 0.01);
@@ -126,11 +136,18 @@ mod tests {
         let coarse = [bump(1.0, 1.0, 2.0, 2.0)];
         let mid = [bump(1.0, 1.0, 0.8, 0.8)];
         let fine = [bump(1.0, 1.0, 0.3, 0.3)];
-        let all = fuse_homocentric(&[&coarse, &mid, &fine]).unwrap().0;
-        let no_dorsal = fuse_homocentric(&[&coarse, &mid, &[]]).unwrap().0;
-        let no_ventral = fuse_homocentric(&[&[], &mid, &fine]).unwrap().0;
+        let all = fuse_homocentric(&[&coarse, &mid, &fine], None).unwrap().0;
+        let no_dorsal = fuse_homocentric(&[&coarse, &mid, &[]], None).unwrap().0;
+        let no_ventral = fuse_homocentric(&[&[], &mid, &fine], None).unwrap().0;
         assert!(no_dorsal.std_rad[0] > no_ventral.std_rad[0]);
         assert!(no_ventral.std_rad[0] > all.std_rad[0]);
+    }
+
+    #[test]
+    fn prior_selects_the_reference_among_several_coarse_bumps() {
+        let mid = [bump(1.0, 1.0, 0.3, 0.3), bump(4.1, 4.1, 0.3, 0.3)];
+        let (f, _) = fuse_homocentric(&[&[], &mid], Some([4.0, 4.2])).unwrap();
+        assert!((f.mean_rad[0] - 4.1).abs() < 1e-9);
     }
 
     #[test]

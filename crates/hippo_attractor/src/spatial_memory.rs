@@ -196,6 +196,7 @@ impl<T: Real> SpatialMemory<T> {
         self.place.set_activity(&vec![T::zero(); self.params.place.n_theta.pow(2)])?;
         self.tracked = [phase_rad; N_MODULES];
         self.place_tracked = None;
+        self.last_fused = None;
         self.time_s = 0.0;
         let settle_steps = (self.params.settle_s / self.params.max_substep_s).ceil() as usize;
         let dt = self.params.max_substep_s;
@@ -309,7 +310,8 @@ impl<T: Real> SpatialMemory<T> {
         }
         // 3. Bayesian fusion (coarsest module first) → place input → place network.
         let slices: Vec<&[Bump2]> = (0..N_MODULES).map(|m| self.last_bumps[m].as_slice()).collect();
-        self.last_fused = match fuse_homocentric(&slices) {
+        let prior = self.last_fused.map(|f| f.mean_rad);
+        self.last_fused = match fuse_homocentric(&slices, prior) {
             Ok((f, _)) => Some(f),
             Err(AttractorError::NothingToFuse) => None,
             Err(e) => return Err(e),

@@ -1,0 +1,88 @@
+//! The fast recurrent inputs (rank-2 ring, per-slice FFT + GEMM torus, FFT place) equal the dense double
+//! sums over the weight formulas, at sizes where the dense sum is cheap.
+use hippo_attractor::reference;
+use hippo_attractor::{GridModule, GridParams, HdParams, HdRing, PlaceNetwork, PlaceParams};
+
+/// Deterministic pseudo-random activity with some exact zeros (silent units and silent velocity slices).
+fn activity(len: usize, seed: u64, zero_every: usize) -> Vec<f64> {
+    let mut x = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+    (0..len)
+        .map(|i| {
+            x = x.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            let v = (x >> 11) as f64 / (1u64 << 53) as f64;
+            if i % zero_every == 0 || v < 0.3 {
+                0.0
+            } else {
+                v
+            }
+        })
+        .collect()
+}
+
+fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
+    assert_eq!(a.len(), b.len());
+    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max)
+}
+
+#[test]
+fn hd_ring_fast_path_equals_dense() {
+    for (nt, nv) in [(16, 5), (13, 4), (32, 1)] {
+        let p = HdParams { n_theta: nt, n_nu: nv, ..HdParams::default() };
+        let ring = HdRing::<f64>::new(p.clone()).unwrap();
+        let m = activity(nt * nv, 7, 5);
+        let mut fast = vec![0.0; m.len()];
+        ring.recurrent_input(&m, &mut fast);
+        let dense = reference::hd_recurrent(&p, &m);
+        let err = max_abs_diff(&fast, &dense);
+        assert!(err < 1e-10, "Nθ={nt} Nν={nv}: {err}");
+        assert!(dense.iter().any(|x| x.abs() > 1e-3), "non-trivial comparison");
+    }
+}
+
+#[test]
+fn grid_fast_path_equals_dense_for_every_module() {
+    for k in [1usize, 2, 4] {
+        for (n, m_nu) in [(8usize, 3usize), (9, 2)] {
+            let p = GridParams { n_theta: n, n_nu: m_nu, ..GridParams::for_module(k) };
+            let module = GridModule::<f64>::new(p.clone()).unwrap();
+            let mut m = activity(p.n_units(), k as u64, 7);
+            // Silence one whole velocity slice to exercise the skip path.
+            m[..n * n].iter_mut().for_each(|x| *x = 0.0);
+            let mut fast = vec![0.0; m.len()];
+            module.recurrent_input(&m, &mut fast);
+            let dense = reference::grid_recurrent(&p, &m);
+            let err = max_abs_diff(&fast, &dense);
+            let scale = dense.iter().map(|x| x.abs()).fold(0.0, f64::max);
+            assert!(scale > 1.0, "non-trivial comparison");
+            assert!(err < 1e-10, "k={k} N={n} M={m_nu}: {err}");
+        }
+    }
+}
+
+#[test]
+fn place_fast_path_equals_dense() {
+    for n in [8usize, 11] {
+        let p = PlaceParams { n_theta: n, ..PlaceParams::default() };
+        let mut net = PlaceNetwork::<f64>::new(p.clone()).unwrap();
+        let m = activity(n * n, 3, 4);
+        let mut fast = vec![0.0; m.len()];
+        net.recurrent_input(&m, &mut fast);
+        let dense = reference::place_recurrent(&p, &m);
+        let err = max_abs_diff(&fast, &dense);
+        assert!(err < 1e-10, "N={n}: {err}");
+    }
+}
+
+#[test]
+fn single_precision_fast_path_tracks_double() {
+    let p = GridParams { n_theta: 16, n_nu: 3, ..GridParams::for_module(2) };
+    let m64 = activity(p.n_units(), 11, 9);
+    let m32: Vec<f32> = m64.iter().map(|&x| x as f32).collect();
+    let mut h64 = vec![0.0; m64.len()];
+    let mut h32 = vec![0.0f32; m32.len()];
+    GridModule::<f64>::new(p.clone()).unwrap().recurrent_input(&m64, &mut h64);
+    GridModule::<f32>::new(p).unwrap().recurrent_input(&m32, &mut h32);
+    let scale = h64.iter().map(|x| x.abs()).fold(0.0, f64::max);
+    let err = h64.iter().zip(&h32).map(|(a, &b)| (a - b as f64).abs()).fold(0.0, f64::max);
+    assert!(err < 1e-4 * scale, "{err} vs scale {scale}");
+}
