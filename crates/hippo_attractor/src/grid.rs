@@ -6,8 +6,19 @@
 //! `ν'`, so for each presynaptic velocity slice it is an exact circular convolution over θ (the kernel has a
 //! kink at ±π, so each slice gets its own precomputed kernel spectrum — a phase ramp would not be exact),
 //! followed by a dense mixing over velocity: `h(·, ν) = Σ_ν' cos(λ|ν − ν'|) · (K_ν' ⊛ m_ν')`.
-//! Silent slices (all zero, the usual case away from the bump's velocity) are skipped: still exact.
-//! Layout: `m[s·N² + iy·N + ix]` with velocity slice `s = jy·M + jx`.
+//! Silent slices (all zero) are skipped: still exact.
+//!
+//! Lattice-symmetric subspace. The weights are invariant under translation by `2π/k` along either torus
+//! axis, so the subspace of patterns with that period is invariant under the dynamics: a module holding
+//! `k²` identical bumps keeps them identical forever in exact arithmetic. We integrate the dynamics *in*
+//! that subspace, on one `(N/k)×(N/k)` unit cell with the kernel folded over the `k²` cells
+//! (`K_fold(Δ) = Σ_j K(Δ + 2πj/k)`) — exactly the paper's dynamics for such states, `k²` times cheaper.
+//! Why: the strongest Fourier modes of `cos(k·r)` on the square torus are not `(k, 0)` but `(2, 1)` for
+//! k = 2 and `(3, 3)` for k = 4, so the square `k×k` lattice is not the full network's preferred pattern:
+//! in double precision a moving k = 2 or k = 4 lattice broke into other patterns (3, 20 bumps) within a
+//! second (see docs/model.md). Restricted to the subspace, the lattice is the stable single bump per cell.
+//! Layout: `m[s·C² + iy·C + ix]` over one cell (`C = N/k`) with velocity slice `s = jy·M + jx`;
+//! [`GridModule::activity`] and [`GridModule::layer2`] tile it back to the full N×N torus.
 use crate::check;
 use crate::circular::wrap;
 use crate::dynamics::{self, step_with_implicit_inhibition};
@@ -76,6 +87,13 @@ impl GridParams {
         check::in_unit_interval("grid.input_tuning", self.input_tuning)?;
         check::positive("grid.input_sigma", self.input_sigma)?;
         check::in_unit_interval("grid.pin_gain", self.pin_gain)?;
+        if self.n_theta % self.k != 0 || self.n_theta / self.k < 2 {
+            return Err(AttractorError::BadParameter {
+                name: "grid.n_theta",
+                value: self.n_theta.to_string(),
+                why: format!("must be a multiple of k = {} with at least 2 units per bump cell", self.k),
+            });
+        }
         Ok(())
     }
 
@@ -83,8 +101,14 @@ impl GridParams {
         self.n_nu * self.n_nu
     }
 
+    /// Units of the full 4-D network (N²M²).
     pub fn n_units(&self) -> usize {
         self.n_theta * self.n_theta * self.n_slices()
+    }
+
+    /// Units per axis of the unit cell that holds one bump (N/k).
+    pub fn cell(&self) -> usize {
+        self.n_theta / self.k
     }
 
     /// The θ part of the weight: `cos(k·|wrap(Δθ − ν')|)`.
@@ -121,14 +145,24 @@ impl<T: Real> GridModule<T> {
     pub fn new(params: GridParams) -> Result<Self> {
         params.validate()?;
         let n = params.n_theta;
+        let (k, c) = (params.k, params.cell());
         let nu = check::velocity_axis(params.n_nu, params.nu_max);
-        let fft = RealFft2::<T>::new(n);
+        let fft = RealFft2::<T>::new(c);
         let slices = slice_velocities(&nu);
+        // Kernel folded over the k² cells: the exact recurrent input for cell-periodic activity.
         let kernel_spectra = slices
             .par_iter()
             .map(|&v| {
                 fft.kernel_spectrum(|dx, dy| {
-                    params.theta_kernel([TAU * dx as f64 / n as f64, TAU * dy as f64 / n as f64], v)
+                    let mut acc = 0.0;
+                    for jy in 0..k {
+                        for jx in 0..k {
+                            let tx = TAU * (dx + jx * c) as f64 / n as f64;
+                            let ty = TAU * (dy + jy * c) as f64 / n as f64;
+                            acc += params.theta_kernel([tx, ty], v);
+                        }
+                    }
+                    acc
                 })
             })
             .collect();
@@ -137,7 +171,7 @@ impl<T: Real> GridModule<T> {
             .flat_map(|&a| slices.iter().map(move |&b| (a, b)))
             .map(|(a, b)| T::of(params.nu_kernel(a, b)))
             .collect();
-        let units = params.n_units();
+        let units = c * c * params.n_slices();
         let mut module = Self {
             nu,
             fft,
@@ -158,8 +192,24 @@ impl<T: Real> GridModule<T> {
         &self.params
     }
 
-    pub fn activity(&self) -> &[T] {
+    /// Integral term of the velocity-pinning loop (part of the state, for save/resume).
+    pub fn pin_bias(&self) -> [f64; 2] {
+        self.pin_bias
+    }
+
+    pub fn set_pin_bias(&mut self, bias: [f64; 2]) {
+        let lim = self.params.nu_max;
+        self.pin_bias = [bias[0].clamp(-lim, lim), bias[1].clamp(-lim, lim)];
+    }
+
+    /// The integrated state: one unit cell per velocity slice (`M² · C²`).
+    pub fn cell_activity(&self) -> &[T] {
         &self.m
+    }
+
+    /// The full conjunctive activity (`M² · N²`, layout `[νy][νx][θy][θx]`), tiled from the cell.
+    pub fn activity(&self) -> Vec<T> {
+        self.tile(&self.m)
     }
 
     pub fn shape(&self) -> String {
@@ -167,32 +217,69 @@ impl<T: Real> GridModule<T> {
         format!("(n_nu_y={m}, n_nu_x={m}, n_theta_y={n}, n_theta_x={n})")
     }
 
+    /// Set the state from a full conjunctive activity; it is projected onto the lattice-symmetric
+    /// subspace (the average over the k² cells).
     pub fn set_activity(&mut self, m: &[T]) -> Result<()> {
-        check::array_len("grid activity", m.len(), self.m.len(), self.shape())?;
+        check::array_len("grid activity", m.len(), self.params.n_units(), self.shape())?;
         check::array_finite("grid activity", m)?;
-        self.m.copy_from_slice(m);
+        self.m = self.fold(m);
         Ok(())
+    }
+
+    /// Tile cell-layout slices (`S · C²`) to full-torus slices (`S · N²`).
+    pub fn tile(&self, cells: &[T]) -> Vec<T> {
+        let (n, c) = (self.params.n_theta, self.params.cell());
+        let mut out = Vec::with_capacity(cells.len() / (c * c) * n * n);
+        for slice in cells.chunks(c * c) {
+            for iy in 0..n {
+                for ix in 0..n {
+                    out.push(slice[(iy % c) * c + ix % c]);
+                }
+            }
+        }
+        out
+    }
+
+    /// Average full-torus slices (`S · N²`) over the k² cells into cell layout (`S · C²`).
+    pub fn fold(&self, full: &[T]) -> Vec<T> {
+        let (n, c, k) = (self.params.n_theta, self.params.cell(), self.params.k);
+        let inv = T::one() / T::of((k * k) as f64);
+        let mut out = Vec::with_capacity(full.len() / (n * n) * c * c);
+        for slice in full.chunks(n * n) {
+            for iy in 0..c {
+                for ix in 0..c {
+                    let mut acc = T::zero();
+                    for jy in 0..k {
+                        for jx in 0..k {
+                            acc = acc + slice[(iy + jy * c) * n + ix + jx * c];
+                        }
+                    }
+                    out.push(acc * inv);
+                }
+            }
+        }
+        out
     }
 
     pub fn nu_axis(&self) -> &[f64] {
         &self.nu
     }
 
-    /// Seed the lattice `k` bumps per axis with one bump at `phase_rad`, concentrated at zero velocity.
+    /// Seed the lattice (`k` bumps per axis, one of them at `phase_rad`), concentrated at zero velocity.
     pub fn seed(&mut self, phase_rad: [f64; 2]) {
-        let n = self.params.n_theta;
+        let (n, c) = (self.params.n_theta, self.params.cell());
         self.pin_bias = [0.0; 2];
         let k = self.params.k as f64;
         let slices = slice_velocities(&self.nu);
         let w = 0.5 * self.params.nu_max;
         for (s, v) in slices.iter().enumerate() {
             let g = (-(v[0] * v[0] + v[1] * v[1]) / (2.0 * w * w)).exp();
-            for iy in 0..n {
-                for ix in 0..n {
+            for iy in 0..c {
+                for ix in 0..c {
                     let tx = TAU * ix as f64 / n as f64 - phase_rad[0];
                     let ty = TAU * iy as f64 / n as f64 - phase_rad[1];
-                    let c = ((k * tx).cos() + 1.0) * ((k * ty).cos() + 1.0) * 0.25;
-                    self.m[s * n * n + iy * n + ix] = T::of(c.powi(4) * g);
+                    let bump = ((k * tx).cos() + 1.0) * ((k * ty).cos() + 1.0) * 0.25;
+                    self.m[s * c * c + iy * c + ix] = T::of(bump.powi(4) * g);
                 }
             }
         }
@@ -226,16 +313,21 @@ impl<T: Real> GridModule<T> {
         Ok(u)
     }
 
-    /// Recurrent input without the uniform inhibition, into `out` (same layout as the state).
+    /// Recurrent input without the uniform inhibition for a cell-layout state `m` (`M²·C²`), into `out`
+    /// (same layout). Tiled to the full torus, it equals the dense sum over the full network for the
+    /// tiled activity.
     pub fn recurrent_input(&self, m: &[T], out: &mut [T]) {
         let mut conv = vec![T::zero(); m.len()];
         self.recurrent_input_with(m, out, &mut conv);
     }
 
     fn recurrent_input_with(&self, m: &[T], out: &mut [T], conv: &mut [T]) {
-        let n2 = self.params.n_theta * self.params.n_theta;
+        let n2 = self.params.cell() * self.params.cell();
         let ns = self.params.n_slices();
-        let scale = T::of(self.params.jk / (n2 * ns) as f64);
+        // The sum runs over the full torus (N² units per slice); the folded kernel accounts for the k²
+        // copies of each cell unit.
+        let full = self.params.n_theta * self.params.n_theta;
+        let scale = T::of(self.params.jk / (full * ns) as f64);
         // 1. Per presynaptic slice: exact circular convolution with that slice's kernel.
         let active: Vec<bool> = m.chunks(n2).map(|c| c.iter().any(|&x| x != T::zero())).collect();
         conv.par_chunks_mut(n2)
@@ -264,7 +356,8 @@ impl<T: Real> GridModule<T> {
     /// bias `b` integrates `pin_gain · (u − ν̄)`, so that `ν̄` follows the target on average — a calibration loop, not part of the
     /// paper's model; `pin_gain = 0` gives the plain model.
     pub fn step(&mut self, u: [f64; 2], view: Option<&[T]>, dt_s: f64, tau_s: f64) -> Result<()> {
-        let n2 = self.params.n_theta * self.params.n_theta;
+        let n2 = self.params.cell() * self.params.cell();
+        let view_cell = view.map(|p| self.fold(p));
         let nu_bar = self.nu_position();
         let lim = self.params.nu_max;
         for a in 0..2 {
@@ -287,7 +380,7 @@ impl<T: Real> GridModule<T> {
             let dist2 = (v[0] - u[0]).powi(2) + (v[1] - u[1]).powi(2);
             let input =
                 T::of(p.input_amp * (1.0 - p.input_tuning + p.input_tuning * (-dist2 / two_s2).exp()));
-            match view {
+            match &view_cell {
                 Some(pattern) => d.iter_mut().zip(pattern).for_each(|(x, &w)| *x = *x + input + w),
                 None => d.iter_mut().for_each(|x| *x = *x + input),
             }
@@ -304,19 +397,19 @@ impl<T: Real> GridModule<T> {
 
     /// Layer-II ("pure grid cell") pattern: the activity summed over both velocity axes (N², `[iy][ix]`).
     pub fn layer2(&self) -> Vec<T> {
-        let n2 = self.params.n_theta * self.params.n_theta;
-        let mut p = vec![T::zero(); n2];
-        for slice in self.m.chunks(n2) {
+        let c2 = self.params.cell() * self.params.cell();
+        let mut p = vec![T::zero(); c2];
+        for slice in self.m.chunks(c2) {
             for (a, &b) in p.iter_mut().zip(slice) {
                 *a = *a + b;
             }
         }
-        p
+        self.tile(&p)
     }
 
     /// Activity-weighted mean position on the velocity axes (what sets the bump speed).
     pub fn nu_position(&self) -> [f64; 2] {
-        let n2 = self.params.n_theta * self.params.n_theta;
+        let n2 = self.params.cell() * self.params.cell();
         let slices = slice_velocities(&self.nu);
         let (mut sx, mut sy, mut total) = (0.0, 0.0, 0.0);
         for (s, slice) in self.m.chunks(n2).enumerate() {

@@ -150,6 +150,15 @@ impl<T: Real> HdRing<T> {
         &self.m
     }
 
+    /// Integral term of the velocity-pinning loop (part of the state, for save/resume).
+    pub fn pin_bias(&self) -> f64 {
+        self.pin_bias
+    }
+
+    pub fn set_pin_bias(&mut self, bias: f64) {
+        self.pin_bias = bias.clamp(-self.params.nu_max, self.params.nu_max);
+    }
+
     /// Replace the whole state (length Nθ·Nν, layout `[ν][θ]`).
     pub fn set_activity(&mut self, m: &[T]) -> Result<()> {
         check::array_len("hd activity", m.len(), self.m.len(), self.shape())?;

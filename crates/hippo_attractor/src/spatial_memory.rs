@@ -132,6 +132,20 @@ pub struct SpatialReadout {
     pub substeps: usize,
 }
 
+/// Everything but the activity arrays that a resumed run needs (small; serialisable).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct AuxState {
+    pub time_s: f64,
+    pub hd_pin_bias: f64,
+    pub grid_pin_bias: [[f64; 2]; N_MODULES],
+    pub tracked_rad: [[f64; 2]; N_MODULES],
+    pub module_pos_rad: [[f64; 2]; N_MODULES],
+    pub place_tracked_rad: Option<[f64; 2]>,
+    pub place_pos_rad: [f64; 2],
+    pub last_fused: Option<FusedEstimate>,
+    pub lesioned: [bool; N_MODULES],
+}
+
 pub struct SpatialMemory<T: Real> {
     params: SpatialMemoryParams,
     pub hd: HdRing<T>,
@@ -213,6 +227,38 @@ impl<T: Real> SpatialMemory<T> {
         self.place_tracked = self.last_place.map(|b| b.mean_rad);
         self.place_pos_rad = [0.0; 2];
         self.time_s = 0.0;
+        Ok(())
+    }
+
+    pub fn aux_state(&self) -> AuxState {
+        AuxState {
+            time_s: self.time_s,
+            hd_pin_bias: self.hd.pin_bias(),
+            grid_pin_bias: [self.grids[0].pin_bias(), self.grids[1].pin_bias(), self.grids[2].pin_bias()],
+            tracked_rad: self.tracked,
+            module_pos_rad: self.module_pos_rad,
+            place_tracked_rad: self.place_tracked,
+            place_pos_rad: self.place_pos_rad,
+            last_fused: self.last_fused,
+            lesioned: self.params.lesioned,
+        }
+    }
+
+    /// Restore the non-array part of a saved state (pair it with the activity setters).
+    pub fn set_aux_state(&mut self, aux: &AuxState) -> Result<()> {
+        check::input("time_s", aux.time_s)?;
+        check::input("hd_pin_bias", aux.hd_pin_bias)?;
+        self.time_s = aux.time_s;
+        self.hd.set_pin_bias(aux.hd_pin_bias);
+        for (g, b) in self.grids.iter_mut().zip(aux.grid_pin_bias) {
+            g.set_pin_bias(b);
+        }
+        self.tracked = aux.tracked_rad;
+        self.module_pos_rad = aux.module_pos_rad;
+        self.place_tracked = aux.place_tracked_rad;
+        self.place_pos_rad = aux.place_pos_rad;
+        self.last_fused = aux.last_fused;
+        self.params.lesioned = aux.lesioned;
         Ok(())
     }
 

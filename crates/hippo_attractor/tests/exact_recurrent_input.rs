@@ -42,15 +42,18 @@ fn hd_ring_fast_path_equals_dense() {
 #[test]
 fn grid_fast_path_equals_dense_for_every_module() {
     for k in [1usize, 2, 4] {
-        for (n, m_nu) in [(8usize, 3usize), (9, 2)] {
+        for (n, m_nu) in [(8usize, 3usize), (12, 2)] {
             let p = GridParams { n_theta: n, n_nu: m_nu, ..GridParams::for_module(k) };
             let module = GridModule::<f64>::new(p.clone()).unwrap();
-            let mut m = activity(p.n_units(), k as u64, 7);
+            let c = p.cell();
+            // The module integrates lattice-periodic activity: a random unit cell, tiled.
+            let mut cell = activity(c * c * p.n_slices(), k as u64, 7);
             // Silence one whole velocity slice to exercise the skip path.
-            m[..n * n].iter_mut().for_each(|x| *x = 0.0);
-            let mut fast = vec![0.0; m.len()];
-            module.recurrent_input(&m, &mut fast);
-            let dense = reference::grid_recurrent(&p, &m);
+            cell[..c * c].iter_mut().for_each(|x| *x = 0.0);
+            let mut fast_cell = vec![0.0; cell.len()];
+            module.recurrent_input(&cell, &mut fast_cell);
+            let fast = module.tile(&fast_cell);
+            let dense = reference::grid_recurrent(&p, &module.tile(&cell));
             let err = max_abs_diff(&fast, &dense);
             let scale = dense.iter().map(|x| x.abs()).fold(0.0, f64::max);
             assert!(scale > 1.0, "non-trivial comparison");
@@ -76,7 +79,7 @@ fn place_fast_path_equals_dense() {
 #[test]
 fn single_precision_fast_path_tracks_double() {
     let p = GridParams { n_theta: 16, n_nu: 3, ..GridParams::for_module(2) };
-    let m64 = activity(p.n_units(), 11, 9);
+    let m64 = activity(p.cell() * p.cell() * p.n_slices(), 11, 9);
     let m32: Vec<f32> = m64.iter().map(|&x| x as f32).collect();
     let mut h64 = vec![0.0; m64.len()];
     let mut h32 = vec![0.0f32; m32.len()];
@@ -85,4 +88,26 @@ fn single_precision_fast_path_tracks_double() {
     let scale = h64.iter().map(|x| x.abs()).fold(0.0, f64::max);
     let err = h64.iter().zip(&h32).map(|(a, &b)| (a - b as f64).abs()).fold(0.0, f64::max);
     assert!(err < 1e-4 * scale, "{err} vs scale {scale}");
+}
+
+/// The default torus size (N = 64: FFT planners pick different algorithms than at N = 8).
+#[test]
+fn grid_fast_path_equals_dense_at_the_default_torus_size() {
+    let p = GridParams { n_theta: 64, n_nu: 2, ..GridParams::for_module(1) };
+    let module = GridModule::<f64>::new(p.clone()).unwrap();
+    let m = activity(p.n_units(), 5, 13);
+    let mut fast = vec![0.0; m.len()];
+    module.recurrent_input(&m, &mut fast);
+    let dense = reference::grid_recurrent(&p, &m);
+    let err = max_abs_diff(&fast, &dense);
+    assert!(err < 1e-10, "{err}");
+}
+
+/// Folding and tiling are inverse on periodic activity, and folding averages the k² cells.
+#[test]
+fn fold_tile_round_trip() {
+    let p = GridParams { n_theta: 16, n_nu: 2, ..GridParams::for_module(4) };
+    let module = GridModule::<f64>::new(p.clone()).unwrap();
+    let cell = activity(p.cell() * p.cell() * p.n_slices(), 3, 5);
+    assert!(max_abs_diff(&module.fold(&module.tile(&cell)), &cell) < 1e-12);
 }

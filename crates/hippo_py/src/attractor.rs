@@ -1,5 +1,368 @@
+//! Bindings of `hippo_attractor`: the spatial-memory network, bump decoding and Bayesian fusion.
+//!
+//! Configuration crosses the boundary as JSON of `SpatialMemoryParams` (the Rust defaults are the single
+//! source; Python's pydantic model is generated from them). Readouts cross as JSON too (small); activity
+//! arrays cross as numpy arrays moved out of Rust vectors without copying.
+use crate::errors::{to_py_err, HippoNavError};
+use hippo_attractor::{
+    decode, fuse_homocentric, Bump2, SpatialMemory, SpatialMemoryParams, ViewInjection,
+};
+use numpy::{IntoPyArray, PyArray1, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 
-pub fn register(_m: &Bound<'_, PyModule>) -> PyResult<()> {
+/// Copy any-layout float64 array into a flat row-major vector after checking its shape.
+fn flat_f64(name: &str, a: &PyReadonlyArrayDyn<'_, f64>, shape: &[usize]) -> PyResult<Vec<f64>> {
+    if a.shape() != shape {
+        return Err(HippoNavError::new_err(format!(
+            "`{name}` has shape {:?}, expected {:?}",
+            a.shape(),
+            shape
+        )));
+    }
+    let v: Vec<f64> = a.as_array().iter().copied().collect();
+    if let Some(i) = v.iter().position(|x| !x.is_finite()) {
+        return Err(HippoNavError::new_err(format!(
+            "`{name}` contains a NaN or infinite value at flat index {i}"
+        )));
+    }
+    Ok(v)
+}
+
+enum Engine {
+    F32(Box<SpatialMemory<f32>>),
+    F64(Box<SpatialMemory<f64>>),
+}
+
+/// Apply `$body` to the engine whatever its precision (`$sm` is bound to it, `$t` to its float type).
+macro_rules! with_engine {
+    ($engine:expr, $sm:ident, $t:ident, $body:expr) => {
+        match $engine {
+            Engine::F32($sm) => {
+                #[allow(dead_code)]
+                type $t = f32;
+                $body
+            }
+            Engine::F64($sm) => {
+                #[allow(dead_code)]
+                type $t = f64;
+                $body
+            }
+        }
+    };
+}
+
+/// The whole spatial-memory network (HD ring, three grid modules, place torus).
+#[pyclass(name = "SpatialMemory", module = "hippo_nav._core")]
+pub struct PySpatialMemory {
+    engine: Engine,
+}
+
+fn to_vec<T: hippo_attractor::Real>(v: Vec<f64>) -> Vec<T> {
+    v.into_iter().map(T::of).collect()
+}
+
+fn into_numpy<'py, T: hippo_attractor::Real + numpy::Element>(
+    py: Python<'py>,
+    v: Vec<T>,
+    shape: &[usize],
+) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+    // Expose float64 regardless of the engine's precision: one dtype for callers.
+    let v64: Vec<f64> = v.into_iter().map(|x| x.f64()).collect();
+    v64.into_pyarray(py).reshape(shape.to_vec())
+}
+
+#[pymethods]
+impl PySpatialMemory {
+    /// `config_json`: JSON of the engine parameters (missing fields are an error: use the Python `Config`).
+    /// `dtype`: "float32" (fast, default) or "float64".
+    #[new]
+    #[pyo3(signature = (config_json=None, dtype="float32"))]
+    fn new(py: Python<'_>, config_json: Option<&str>, dtype: &str) -> PyResult<Self> {
+        let params: SpatialMemoryParams = match config_json {
+            None => SpatialMemoryParams::default(),
+            Some(s) => serde_json::from_str(s)
+                .map_err(|e| HippoNavError::new_err(format!("invalid engine config: {e}")))?,
+        };
+        let engine = match dtype {
+            "float32" => py
+                .detach(|| SpatialMemory::<f32>::new(params))
+                .map(|s| Engine::F32(Box::new(s))),
+            "float64" => py
+                .detach(|| SpatialMemory::<f64>::new(params))
+                .map(|s| Engine::F64(Box::new(s))),
+            other => {
+                return Err(HippoNavError::new_err(format!(
+                    "dtype must be 'float32' or 'float64', not {other:?}"
+                )))
+            }
+        }
+        .map_err(to_py_err)?;
+        Ok(Self { engine })
+    }
+
+    /// The resolved parameters as JSON.
+    fn config_json(&self) -> PyResult<String> {
+        with_engine!(&self.engine, sm, T, serde_json::to_string(sm.params()))
+            .map_err(|e| HippoNavError::new_err(e.to_string()))
+    }
+
+    /// Advance one camera frame. `view`: optional (hd_profile (Nθ,), [layer2 (N,N) or None] × 3, strength).
+    /// Returns the readout as JSON.
+    #[pyo3(signature = (yaw_rate_rad_s, speed_m_s, dt_s, view=None))]
+    fn step(
+        &mut self,
+        py: Python<'_>,
+        yaw_rate_rad_s: f64,
+        speed_m_s: f64,
+        dt_s: f64,
+        view: Option<(
+            PyReadonlyArrayDyn<'_, f64>,
+            Vec<Option<PyReadonlyArrayDyn<'_, f64>>>,
+            f64,
+        )>,
+    ) -> PyResult<String> {
+        let view = match view {
+            None => None,
+            Some((hd, grids, strength)) => {
+                let (nt, n) = with_engine!(&self.engine, sm, T, {
+                    (sm.params().hd.n_theta, sm.params().place.n_theta)
+                });
+                if grids.len() != 3 {
+                    return Err(HippoNavError::new_err(format!(
+                        "view grid patterns: expected 3 (one per module, None to skip), got {}",
+                        grids.len()
+                    )));
+                }
+                let hd = flat_f64("view hd_profile", &hd, &[nt])?;
+                let mut g: [Option<Vec<f64>>; 3] = [None, None, None];
+                for (i, p) in grids.iter().enumerate() {
+                    if let Some(p) = p {
+                        g[i] = Some(flat_f64("view grid pattern", p, &[n, n])?);
+                    }
+                }
+                Some((hd, g, strength))
+            }
+        };
+        let readout = with_engine!(&mut self.engine, sm, T, {
+            let inj = view.map(|(hd, g, strength)| ViewInjection::<T> {
+                hd_profile: to_vec(hd),
+                grid_layer2: g.map(|p| p.map(to_vec)),
+                strength,
+            });
+            py.detach(|| sm.step(yaw_rate_rad_s, speed_m_s, dt_s, inj.as_ref()))
+        })
+        .map_err(to_py_err)?;
+        serde_json::to_string(&readout).map_err(|e| HippoNavError::new_err(e.to_string()))
+    }
+
+    /// The current readout as JSON.
+    fn readout(&self) -> PyResult<String> {
+        let r = with_engine!(&self.engine, sm, T, sm.readout());
+        serde_json::to_string(&r).map_err(|e| HippoNavError::new_err(e.to_string()))
+    }
+
+    /// Re-seed every network at a heading and torus phase and let the bumps settle.
+    #[pyo3(signature = (heading_rad=0.0, phase_rad=(0.0, 0.0)))]
+    fn reset(&mut self, py: Python<'_>, heading_rad: f64, phase_rad: (f64, f64)) -> PyResult<()> {
+        with_engine!(&mut self.engine, sm, T, {
+            py.detach(|| sm.reset(heading_rad, [phase_rad.0, phase_rad.1]))
+        })
+        .map_err(to_py_err)
+    }
+
+    /// Switch modules off (True) or on, coarsest first.
+    fn set_lesions(&mut self, lesioned: [bool; 3]) {
+        with_engine!(&mut self.engine, sm, T, sm.set_lesions(lesioned))
+    }
+
+    /// HD-by-velocity activity, shape (Nν, Nθ).
+    fn hd_activity<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        with_engine!(&self.engine, sm, T, {
+            let p = &sm.params().hd;
+            into_numpy(py, sm.hd.activity().to_vec(), &[p.n_nu, p.n_theta])
+        })
+    }
+
+    /// HD θ-profile (activity summed over ν), shape (Nθ,).
+    fn hd_profile<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        with_engine!(&self.engine, sm, T, {
+            let n = sm.params().hd.n_theta;
+            into_numpy(py, sm.hd.theta_profile(), &[n])
+        })
+    }
+
+    /// Conjunctive activity of grid module `index`, shape (M, M, N, N) = (νy, νx, θy, θx).
+    fn grid_activity<'py>(&self, py: Python<'py>, index: usize) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        with_engine!(&self.engine, sm, T, {
+            let g = sm.grids.get(index).ok_or_else(|| module_index_error(index))?;
+            let p = g.params();
+            into_numpy(py, g.activity(), &[p.n_nu, p.n_nu, p.n_theta, p.n_theta])
+        })
+    }
+
+    /// Layer-II pattern of grid module `index` (summed over velocity), shape (N, N) = (θy, θx).
+    fn grid_layer2<'py>(&self, py: Python<'py>, index: usize) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        with_engine!(&self.engine, sm, T, {
+            let g = sm.grids.get(index).ok_or_else(|| module_index_error(index))?;
+            let n = g.params().n_theta;
+            into_numpy(py, g.layer2(), &[n, n])
+        })
+    }
+
+    /// CA3 place activity, shape (N, N) = (θy, θx).
+    fn place_activity<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        with_engine!(&self.engine, sm, T, {
+            let n = sm.params().place.n_theta;
+            into_numpy(py, sm.place.activity().to_vec(), &[n, n])
+        })
+    }
+
+    /// The Gaussian grid input to the place network, shape (N, N).
+    fn place_input<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        with_engine!(&self.engine, sm, T, {
+            let n = sm.params().place.n_theta;
+            into_numpy(py, sm.place.input().to_vec(), &[n, n])
+        })
+    }
+
+    /// The non-array part of the state (pinning loops, bump tracking, time) as JSON.
+    fn aux_state_json(&self) -> PyResult<String> {
+        let aux = with_engine!(&self.engine, sm, T, sm.aux_state());
+        serde_json::to_string(&aux).map_err(|e| HippoNavError::new_err(e.to_string()))
+    }
+
+    /// Restore a full network state (activity arrays as returned by the getters, plus `aux_state_json`),
+    /// e.g. to resume a run. Everything is validated before anything is changed.
+    fn set_state(
+        &mut self,
+        hd: PyReadonlyArrayDyn<'_, f64>,
+        grids: Vec<PyReadonlyArrayDyn<'_, f64>>,
+        place: PyReadonlyArrayDyn<'_, f64>,
+        aux_json: &str,
+    ) -> PyResult<()> {
+        let aux: hippo_attractor::AuxState = serde_json::from_str(aux_json)
+            .map_err(|e| HippoNavError::new_err(format!("invalid saved network state: {e}")))?;
+        let (hp, gp, pp) = with_engine!(&self.engine, sm, T, {
+            (sm.params().hd.clone(), sm.params().grid.clone(), sm.params().place.clone())
+        });
+        let hd = flat_f64("hd activity", &hd, &[hp.n_nu, hp.n_theta])?;
+        if grids.len() != 3 {
+            return Err(HippoNavError::new_err("grid activities: expected one array per module (3)"));
+        }
+        let mut g = Vec::with_capacity(3);
+        for (a, p) in grids.iter().zip(&gp) {
+            g.push(flat_f64("grid activity", a, &[p.n_nu, p.n_nu, p.n_theta, p.n_theta])?);
+        }
+        let place = flat_f64("place activity", &place, &[pp.n_theta, pp.n_theta])?;
+        with_engine!(&mut self.engine, sm, T, {
+            sm.hd.set_activity(&to_vec::<T>(hd)).map_err(to_py_err)?;
+            for (module, a) in sm.grids.iter_mut().zip(g) {
+                module.set_activity(&to_vec::<T>(a)).map_err(to_py_err)?;
+            }
+            sm.place.set_activity(&to_vec::<T>(place)).map_err(to_py_err)?;
+            sm.set_aux_state(&aux).map_err(to_py_err)
+        })
+    }
+}
+
+fn module_index_error(index: usize) -> PyErr {
+    HippoNavError::new_err(format!("grid module index {index} out of range: there are 3 (0 = coarsest)"))
+}
+
+/// Default engine parameters as JSON (the single source of defaults).
+#[pyfunction]
+fn default_engine_config_json() -> PyResult<String> {
+    serde_json::to_string(&SpatialMemoryParams::default())
+        .map_err(|e| HippoNavError::new_err(e.to_string()))
+}
+
+/// Bumps of an (N, N) torus pattern: list of (mean_rad (x, y), std_rad (x, y), mass), strongest first.
+#[pyfunction]
+#[pyo3(signature = (pattern, threshold_frac=0.3))]
+fn find_bumps(
+    pattern: PyReadonlyArrayDyn<'_, f64>,
+    threshold_frac: f64,
+) -> PyResult<Vec<((f64, f64), (f64, f64), f64)>> {
+    let shape = pattern.shape().to_vec();
+    if shape.len() != 2 || shape[0] != shape[1] || shape[0] < 2 {
+        return Err(HippoNavError::new_err(format!(
+            "pattern must be a square (N, N) array, got shape {shape:?}"
+        )));
+    }
+    if !(0.0..=1.0).contains(&threshold_frac) {
+        return Err(HippoNavError::new_err("threshold_frac must lie in [0, 1]"));
+    }
+    let n = shape[0];
+    let v = flat_f64("pattern", &pattern, &[n, n])?;
+    Ok(decode::find_bumps(&v, n, threshold_frac)
+        .into_iter()
+        .map(|b| ((b.mean_rad[0], b.mean_rad[1]), (b.std_rad[0], b.std_rad[1]), b.mass))
+        .collect())
+}
+
+/// Bayesian fusion of one or more modules' bumps, coarsest module first (SPEC §4).
+/// `modules`: per module a list of (mean_rad, std_rad) pairs (an empty list = lesioned).
+/// Returns (mean_rad, std_rad, chosen bumps).
+#[pyfunction]
+#[pyo3(signature = (modules, prior_rad=None))]
+#[allow(clippy::type_complexity)]
+fn fuse_modules(
+    modules: Vec<Vec<((f64, f64), (f64, f64))>>,
+    prior_rad: Option<(f64, f64)>,
+) -> PyResult<((f64, f64), (f64, f64), Vec<((f64, f64), (f64, f64))>)> {
+    let bumps: Vec<Vec<Bump2>> = modules
+        .iter()
+        .map(|m| {
+            m.iter()
+                .map(|&(mu, s)| Bump2 { mean_rad: [mu.0, mu.1], std_rad: [s.0, s.1], mass: 1.0 })
+                .collect()
+        })
+        .collect();
+    let slices: Vec<&[Bump2]> = bumps.iter().map(|b| b.as_slice()).collect();
+    let (f, chosen) =
+        fuse_homocentric(&slices, prior_rad.map(|p| [p.0, p.1])).map_err(to_py_err)?;
+    Ok((
+        (f.mean_rad[0], f.mean_rad[1]),
+        (f.std_rad[0], f.std_rad[1]),
+        chosen
+            .iter()
+            .map(|b| ((b.mean_rad[0], b.mean_rad[1]), (b.std_rad[0], b.std_rad[1])))
+            .collect(),
+    ))
+}
+
+/// Dense-reference and fast recurrent input of a small grid module, for cross-checks from Python.
+#[pyfunction]
+fn grid_recurrent_input_check<'py>(
+    py: Python<'py>,
+    config_json: &str,
+    module: usize,
+    activity: PyReadonlyArrayDyn<'_, f64>,
+) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>)> {
+    let params: SpatialMemoryParams = serde_json::from_str(config_json)
+        .map_err(|e| HippoNavError::new_err(format!("invalid engine config: {e}")))?;
+    let p = params.grid.get(module).ok_or_else(|| module_index_error(module))?.clone();
+    if p.n_units() > 20_000 {
+        return Err(HippoNavError::new_err(
+            "the dense reference is for small modules only (at most 20 000 units)",
+        ));
+    }
+    let m = flat_f64("activity", &activity, &[p.n_nu, p.n_nu, p.n_theta, p.n_theta])?;
+    let g = hippo_attractor::GridModule::<f64>::new(p.clone()).map_err(to_py_err)?;
+    // The engine integrates the lattice-symmetric part; compare on the projected (periodic) activity.
+    let cell = g.fold(&m);
+    let mut fast_cell = vec![0.0; cell.len()];
+    g.recurrent_input(&cell, &mut fast_cell);
+    let fast = g.tile(&fast_cell);
+    let dense = hippo_attractor::reference::grid_recurrent(&p, &g.tile(&cell));
+    Ok((fast.into_pyarray(py), dense.into_pyarray(py)))
+}
+
+pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<PySpatialMemory>()?;
+    m.add_function(wrap_pyfunction!(default_engine_config_json, m)?)?;
+    m.add_function(wrap_pyfunction!(find_bumps, m)?)?;
+    m.add_function(wrap_pyfunction!(fuse_modules, m)?)?;
+    m.add_function(wrap_pyfunction!(grid_recurrent_input_check, m)?)?;
     Ok(())
 }

@@ -1,0 +1,20 @@
+"""The neural engine: HD ring, grid modules, Bayesian fusion and the CA3 place torus (Rust)."""
+
+from hippo_nav._core import find_bumps, fuse_modules
+from hippo_nav.engine.config import MODULE_NAMES, EngineConfig, GridConfig, HdConfig, PlaceConfig
+from hippo_nav.engine.network import Bump, ModuleReadout, SpatialMemory, SpatialReadout, ViewPatterns
+
+__all__ = [
+    "MODULE_NAMES",
+    "Bump",
+    "EngineConfig",
+    "GridConfig",
+    "HdConfig",
+    "ModuleReadout",
+    "PlaceConfig",
+    "SpatialMemory",
+    "SpatialReadout",
+    "ViewPatterns",
+    "find_bumps",
+    "fuse_modules",
+]
