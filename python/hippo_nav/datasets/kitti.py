@@ -1,0 +1,235 @@
+"""KITTI odometry loader (the layout of SPEC §9).
+
+```
+<root>/sequences/XX/image_0/NNNNNN.png   left, 8-bit gray, rectified
+<root>/sequences/XX/image_1/NNNNNN.png   right
+<root>/sequences/XX/calib.txt            lines "P0: 12 numbers" … "P3: …" (row-major 3×4), optional "Tr: …"
+<root>/sequences/XX/times.txt            one timestamp (s) per frame of the whole sequence
+<root>/poses/XX.txt                      ground truth, sequences 00–10 only (see hippo_nav.io.poses)
+```
+
+Frames load lazily: constructing the dataset reads calib.txt, times.txt and the header of one image (for
+the image size); each `__getitem__` reads one pair. With `available_only=True` and no explicit range the
+dataset yields the frames whose left and right images both exist (public copies often hold a prefix of a
+sequence only) and says so in `.note`. An explicit `start`/`stop` range must exist in full.
+
+`ground_truth()` returns the poses of the yielded frames as written in the file: `world` is camera 0 at
+frame 0 of the sequence (not at the first yielded frame). Rebase with `inv(gt[0]) @ gt` if needed.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from hippo_nav.datasets.base import StereoCalibration, StereoFrame
+from hippo_nav.io.errors import DatasetError, file_error
+from hippo_nav.io.poses import read_kitti_poses
+
+# Rectified pairs share K; the public calibration files print K to 7 significant digits.
+_INTRINSICS_TOLERANCE = 1e-6
+
+
+def read_calibration(calib_path: Path, image_size_px: tuple[int, int]) -> StereoCalibration:
+    """Parse a KITTI `calib.txt`; P0 and P1 are required, P2/P3 optional, other keys (Tr) ignored."""
+    if not calib_path.is_file():
+        raise DatasetError(f"{calib_path}: calibration file not found (a KITTI sequence needs calib.txt)")
+    matrices: dict[str, np.ndarray] = {}
+    for number, text in enumerate(calib_path.read_text().splitlines(), start=1):
+        if not text.strip():
+            continue
+        key, sep, rest = text.partition(":")
+        key = key.strip()
+        if not sep:
+            raise file_error(calib_path, f"expected 'KEY: numbers', got {text.strip()[:40]!r}", number)
+        if key not in ("P0", "P1", "P2", "P3"):
+            continue
+        fields = rest.split()
+        if len(fields) != 12:
+            raise file_error(
+                calib_path, f"{key} needs 12 numbers (a 3x4 matrix), found {len(fields)}", number
+            )
+        try:
+            matrix = np.array([float(f) for f in fields], dtype=np.float64).reshape(3, 4)
+        except ValueError as err:
+            raise file_error(calib_path, f"{key}: not a number: {err}", number) from None
+        if not np.all(np.isfinite(matrix)):
+            raise file_error(calib_path, f"{key} contains NaN or infinity", number)
+        if matrix[0, 0] <= 0 or matrix[1, 1] <= 0 or matrix[2, 2] != 1.0:
+            raise file_error(calib_path, f"{key} is not a projection K[I|t] (fx, fy > 0, P[2,2] = 1)", number)
+        matrices[key] = matrix
+    for required in ("P0", "P1"):
+        if required not in matrices:
+            raise file_error(calib_path, f"no {required} line; P0 (left) and P1 (right) are required")
+    p0, p1 = matrices["P0"], matrices["P1"]
+    if np.abs(p0[:, :3] - p1[:, :3]).max() > _INTRINSICS_TOLERANCE * p0[0, 0]:
+        raise file_error(
+            calib_path, "P0 and P1 have different intrinsics: the images are not a rectified pair"
+        )
+    if -p1[0, 3] / p1[0, 0] <= 0:
+        raise file_error(calib_path, "P1[0,3] must be negative (right camera at +baseline along x)")
+    return StereoCalibration(p0, p1, matrices.get("P2"), matrices.get("P3"), image_size_px)
+
+
+def read_times(times_path: Path) -> np.ndarray:
+    """Timestamps (s) of every frame of the sequence, one per line, non-decreasing."""
+    if not times_path.is_file():
+        raise DatasetError(f"{times_path}: timestamps file not found (a KITTI sequence needs times.txt)")
+    stamps: list[float] = []
+    for number, text in enumerate(times_path.read_text().splitlines(), start=1):
+        if not text.strip():
+            continue
+        try:
+            value = float(text)
+        except ValueError:
+            raise file_error(times_path, f"not a timestamp: {text.strip()[:40]!r}", number) from None
+        if not np.isfinite(value) or (stamps and value < stamps[-1]):
+            raise file_error(times_path, f"timestamp {value} is not finite or goes backwards", number)
+        stamps.append(value)
+    if not stamps:
+        raise file_error(times_path, "holds no timestamps")
+    return np.array(stamps)
+
+
+def read_gray(path: Path) -> np.ndarray:
+    """Load an 8-bit image as (H, W) uint8 gray; colour images are converted, other depths rejected."""
+    if not path.is_file():
+        raise DatasetError(f"{path}: image not found")
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise DatasetError(f"{path}: image is corrupt or not a format OpenCV can read; replace the file")
+    if image.dtype != np.uint8:
+        raise DatasetError(f"{path}: image has dtype {image.dtype}; KITTI images are 8-bit")
+    if image.ndim == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_BGRA2GRAY if image.shape[2] == 4 else cv2.COLOR_BGR2GRAY)
+    return image
+
+
+class KittiOdometry:
+    """A KITTI odometry sequence as a `StereoDataset` (see the module doc for the layout and semantics)."""
+
+    def __init__(
+        self,
+        root: str | Path,
+        sequence: str,
+        start: int | None = None,
+        stop: int | None = None,
+        stride: int = 1,
+        available_only: bool = True,
+    ) -> None:
+        self.root = Path(root)
+        self.sequence = str(sequence)
+        self.name = f"kitti_{self.sequence}"
+        self.note = ""
+        if not (self.root / "sequences").is_dir():
+            raise DatasetError(
+                f"{self.root}: not a KITTI odometry root (no sequences/ folder); "
+                "pass the folder that holds sequences/ and poses/"
+            )
+        self.sequence_dir = self.root / "sequences" / self.sequence
+        if not self.sequence_dir.is_dir():
+            present = sorted(p.name for p in (self.root / "sequences").iterdir() if p.is_dir())
+            raise DatasetError(f"{self.sequence_dir}: sequence not found; present: {', '.join(present)}")
+        if stride < 1:
+            raise DatasetError(f"stride must be >= 1, got {stride}")
+        for camera in ("image_0", "image_1"):
+            if not (self.sequence_dir / camera).is_dir():
+                raise DatasetError(
+                    f"{self.sequence_dir / camera}: folder missing; a stereo sequence needs image_0 and image_1"
+                )
+
+        all_times_s = read_times(self.sequence_dir / "times.txt")
+        self.frame_indices = self._select_frames(len(all_times_s), start, stop, stride, available_only)
+        self.timestamps_s = all_times_s[self.frame_indices]
+
+        first = read_gray(self._image_path(0, int(self.frame_indices[0])))
+        height, width = first.shape
+        self.calibration = read_calibration(self.sequence_dir / "calib.txt", (width, height))
+        self._poses_path = self.root / "poses" / f"{self.sequence}.txt"
+
+    def _image_path(self, camera: int, frame: int) -> Path:
+        return self.sequence_dir / f"image_{camera}" / f"{frame:06d}.png"
+
+    def _select_frames(
+        self, n_frames: int, start: int | None, stop: int | None, stride: int, available_only: bool
+    ) -> np.ndarray:
+        times = self.sequence_dir / "times.txt"
+        explicit = start is not None or stop is not None
+        lo = 0 if start is None else start
+        hi = n_frames if stop is None else stop
+        if not 0 <= lo < hi <= n_frames:
+            raise DatasetError(
+                f"frame range [{lo}, {hi}) is empty or outside the sequence: {times} lists {n_frames} frames"
+            )
+        wanted = np.arange(lo, hi, stride, dtype=np.int64)
+        if explicit or not available_only:
+            for frame in wanted:
+                for camera in (0, 1):
+                    if not self._image_path(camera, int(frame)).is_file():
+                        raise DatasetError(
+                            f"{self._image_path(camera, int(frame))}: image missing for requested frame "
+                            f"{frame}; choose a range whose images exist"
+                        )
+            return wanted
+        present = np.array(
+            [self._image_path(0, int(f)).is_file() and self._image_path(1, int(f)).is_file() for f in wanted]
+        )
+        if not present.any():
+            raise DatasetError(
+                f"{self.sequence_dir}: no frame has both image_0 and image_1 images; this loader needs stereo"
+            )
+        frames = wanted[present]
+        if len(frames) < len(wanted):
+            self.note = (
+                f"sequence {self.sequence}: stereo images exist for {len(frames)} of {len(wanted)} frames "
+                f"({frames[0]}..{frames[-1]}); using only those"
+            )
+        return frames
+
+    def __len__(self) -> int:
+        return len(self.frame_indices)
+
+    def __getitem__(self, i: int) -> StereoFrame:
+        n = len(self.frame_indices)
+        if not -n <= i < n:
+            raise IndexError(f"frame {i} out of range for a dataset of {n} frames")
+        frame = int(self.frame_indices[i])
+        left_path, right_path = self._image_path(0, frame), self._image_path(1, frame)
+        left, right = read_gray(left_path), read_gray(right_path)
+        if left.shape != right.shape:
+            raise DatasetError(
+                f"{right_path}: size {right.shape[::-1]} differs from the left image {left_path} "
+                f"{left.shape[::-1]}; stereo pairs must have equal sizes"
+            )
+        if (left.shape[1], left.shape[0]) != self.calibration.image_size_px:
+            raise DatasetError(
+                f"{left_path}: size {left.shape[::-1]} differs from the sequence's first image "
+                f"{self.calibration.image_size_px}"
+            )
+        return StereoFrame(frame, float(self.timestamps_s[i]), left, right)
+
+    def __iter__(self) -> Iterator[StereoFrame]:
+        for i in range(len(self)):
+            yield self[i]
+
+    def ground_truth(self) -> np.ndarray | None:
+        if not self._poses_path.is_file():
+            return None
+        poses = read_kitti_poses(self._poses_path)
+        if int(self.frame_indices[-1]) >= len(poses):
+            raise DatasetError(
+                f"{self._poses_path}: holds {len(poses)} poses but frame {int(self.frame_indices[-1])} is "
+                "needed; the pose file does not match the sequence"
+            )
+        return poses[self.frame_indices]
+
+    @staticmethod
+    def detect(path: Path) -> bool:
+        """True when `path` looks like a KITTI odometry root."""
+        return (path / "sequences").is_dir()
+
+    def __repr__(self) -> str:
+        return f"KittiOdometry(root={str(self.root)!r}, sequence={self.sequence!r}, frames={len(self)})"

@@ -1,0 +1,178 @@
+"""Trajectory files in the KITTI odometry and TUM RGB-D formats, as (N, 4, 4) `world_from_camera` arrays.
+
+KITTI (`poses/XX.txt`): one pose per line, 12 numbers = the row-major 3×4 matrix [R | t] of
+`world_from_camera`, where "world" is the camera-0 frame of the sequence's first frame (x right, y down,
+z forward). Line N is frame N; there are no timestamps (they live in `sequences/XX/times.txt`).
+
+TUM: one pose per line, `timestamp_s x y z qx qy qz qw` (Hamilton unit quaternion, scalar last),
+`#` starts a comment line. Both formats are what evo and the KITTI devkit read.
+
+Readers check every line (field count, numbers, finiteness, a proper rotation) and raise `DatasetError`
+naming the file and the 1-based line at fault. Writers accept any array layout and write with enough
+digits (%.9e) that a write/read round trip is exact to ~1e-9.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from hippo_nav.io.errors import DatasetError, file_error
+
+# A 3×3 block read from a file counts as a rotation when RᵀR = I and det R = 1 within this tolerance.
+# Files are often written with 6–9 significant digits, so exactness cannot be asked for; a corrupt or
+# transposed-with-translation line is off by far more.
+ROTATION_TOLERANCE = 1e-3
+
+
+def _check_rotation(rotation: np.ndarray, path: Path, line: int) -> None:
+    gram_error = np.abs(rotation.T @ rotation - np.eye(3)).max()
+    det = np.linalg.det(rotation)
+    if gram_error > ROTATION_TOLERANCE or abs(det - 1.0) > ROTATION_TOLERANCE:
+        raise file_error(
+            path,
+            f"the 3x3 block is not a rotation (|RᵀR − I| = {gram_error:.2g}, det = {det:.4g}); "
+            "each line must hold a proper rotation [R | t]",
+            line,
+        )
+
+
+def _numbers(text: str, path: Path, line: int, expected: int, what: str) -> np.ndarray:
+    fields = text.split()
+    if len(fields) != expected:
+        raise file_error(path, f"expected {expected} numbers ({what}), found {len(fields)}", line)
+    try:
+        values = np.array([float(f) for f in fields], dtype=np.float64)
+    except ValueError as err:
+        raise file_error(path, f"not a number: {err}", line) from None
+    if not np.all(np.isfinite(values)):
+        raise file_error(path, "contains NaN or infinity", line)
+    return values
+
+
+def _lines(path: str | Path) -> tuple[Path, list[str]]:
+    path = Path(path)
+    if not path.is_file():
+        raise DatasetError(f"{path}: pose file not found (check the path)")
+    try:
+        text = path.read_text()
+    except (OSError, UnicodeDecodeError) as err:
+        raise file_error(path, f"cannot be read as text: {err}") from None
+    lines = text.splitlines()
+    while lines and not lines[-1].strip():
+        lines.pop()  # a trailing newline or blank tail is not a pose
+    return path, lines
+
+
+def read_kitti_poses(path: str | Path) -> np.ndarray:
+    """Read a KITTI pose file into an (N, 4, 4) float64 array of `world_from_camera` matrices."""
+    path, lines = _lines(path)
+    if not lines:
+        raise file_error(path, "is empty; a KITTI pose file has one 12-number line per frame")
+    poses = np.tile(np.eye(4), (len(lines), 1, 1))
+    for i, text in enumerate(lines):
+        if not text.strip():
+            raise file_error(path, "blank line inside the file (line N must be frame N)", i + 1)
+        poses[i, :3, :4] = _numbers(text, path, i + 1, 12, "a row-major 3x4 pose").reshape(3, 4)
+        _check_rotation(poses[i, :3, :3], path, i + 1)
+    return poses
+
+
+def _validated_poses(world_from_camera: np.ndarray) -> np.ndarray:
+    poses = np.asarray(world_from_camera, dtype=np.float64)
+    if poses.ndim != 3 or poses.shape[1:] not in ((4, 4), (3, 4)):
+        raise DatasetError(f"poses must have shape (N, 4, 4) or (N, 3, 4), got {poses.shape}")
+    if not np.all(np.isfinite(poses)):
+        raise DatasetError("poses contain NaN or infinity; refusing to write them")
+    return poses
+
+
+def write_kitti_poses(path: str | Path, world_from_camera: np.ndarray) -> Path:
+    """Write (N, 4, 4) or (N, 3, 4) poses as a KITTI pose file; returns the path."""
+    poses = _validated_poses(world_from_camera)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savetxt(path, poses[:, :3, :4].reshape(len(poses), 12), fmt="%.9e")
+    return path
+
+
+def quaternion_from_matrix(rotation: np.ndarray) -> np.ndarray:
+    """Unit quaternion (qx, qy, qz, qw), qw ≥ 0, of a 3×3 rotation (Shepperd's numerically stable branch)."""
+    r = np.asarray(rotation, dtype=np.float64)
+    trace = np.trace(r)
+    # Pick the largest of 4·qw², 4·qx², 4·qy², 4·qz² as the divisor so no branch divides by a tiny number.
+    candidates = np.array([trace, r[0, 0], r[1, 1], r[2, 2]])
+    k = int(np.argmax(candidates))
+    if k == 0:
+        s = 2.0 * np.sqrt(1.0 + trace)
+        q = np.array([(r[2, 1] - r[1, 2]) / s, (r[0, 2] - r[2, 0]) / s, (r[1, 0] - r[0, 1]) / s, s / 4])
+    elif k == 1:
+        s = 2.0 * np.sqrt(max(1.0 + r[0, 0] - r[1, 1] - r[2, 2], 0.0))
+        q = np.array([s / 4, (r[0, 1] + r[1, 0]) / s, (r[0, 2] + r[2, 0]) / s, (r[2, 1] - r[1, 2]) / s])
+    elif k == 2:
+        s = 2.0 * np.sqrt(max(1.0 + r[1, 1] - r[0, 0] - r[2, 2], 0.0))
+        q = np.array([(r[0, 1] + r[1, 0]) / s, s / 4, (r[1, 2] + r[2, 1]) / s, (r[0, 2] - r[2, 0]) / s])
+    else:
+        s = 2.0 * np.sqrt(max(1.0 + r[2, 2] - r[0, 0] - r[1, 1], 0.0))
+        q = np.array([(r[0, 2] + r[2, 0]) / s, (r[1, 2] + r[2, 1]) / s, s / 4, (r[1, 0] - r[0, 1]) / s])
+    q /= np.linalg.norm(q)
+    return -q if q[3] < 0 else q
+
+
+def matrix_from_quaternion(quaternion_xyzw: np.ndarray) -> np.ndarray:
+    """3×3 rotation of a (qx, qy, qz, qw) quaternion; the quaternion is normalised first."""
+    x, y, z, w = np.asarray(quaternion_xyzw, dtype=np.float64) / np.linalg.norm(quaternion_xyzw)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+            [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+            [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+def read_tum(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """Read a TUM trajectory: (timestamps_s (N,), world_from_camera (N, 4, 4))."""
+    path, lines = _lines(path)
+    stamps: list[float] = []
+    poses: list[np.ndarray] = []
+    for i, text in enumerate(lines):
+        stripped = text.strip()
+        if not stripped or stripped.startswith("#"):
+            continue
+        values = _numbers(stripped.replace(",", " "), path, i + 1, 8, "timestamp x y z qx qy qz qw")
+        quaternion = values[4:]
+        norm = np.linalg.norm(quaternion)
+        if abs(norm - 1.0) > ROTATION_TOLERANCE:
+            raise file_error(path, f"quaternion norm is {norm:.6g}, expected 1 (qx qy qz qw order)", i + 1)
+        pose = np.eye(4)
+        pose[:3, :3] = matrix_from_quaternion(quaternion)
+        pose[:3, 3] = values[1:4]
+        stamps.append(values[0])
+        poses.append(pose)
+    if not poses:
+        raise file_error(path, "holds no poses; a TUM line is 'timestamp x y z qx qy qz qw'")
+    timestamps_s = np.array(stamps)
+    if np.any(np.diff(timestamps_s) <= 0):
+        bad = int(np.argmax(np.diff(timestamps_s) <= 0)) + 1
+        raise file_error(path, f"timestamps must increase strictly; pose #{bad + 1} does not")
+    return timestamps_s, np.stack(poses)
+
+
+def write_tum(path: str | Path, timestamps_s: np.ndarray, world_from_camera: np.ndarray) -> Path:
+    """Write poses with their timestamps as a TUM trajectory file; returns the path."""
+    poses = _validated_poses(world_from_camera)
+    stamps = np.asarray(timestamps_s, dtype=np.float64).reshape(-1)
+    if stamps.shape[0] != poses.shape[0]:
+        raise DatasetError(f"{stamps.shape[0]} timestamps for {poses.shape[0]} poses; give one per pose")
+    if not np.all(np.isfinite(stamps)):
+        raise DatasetError("timestamps contain NaN or infinity")
+    rows = np.empty((len(poses), 8))
+    rows[:, 0] = stamps
+    rows[:, 1:4] = poses[:, :3, 3]
+    rows[:, 4:] = [quaternion_from_matrix(p[:3, :3]) for p in poses]
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    np.savetxt(path, rows, fmt="%.9f %.9e %.9e %.9e %.12f %.12f %.12f %.12f")
+    return path
