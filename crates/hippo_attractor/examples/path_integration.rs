@@ -5,7 +5,10 @@ use hippo_attractor::{SpatialMemory, SpatialMemoryParams};
 use std::time::Instant;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let a: Vec<f64> = std::env::args().skip(1).map(|s| s.parse().unwrap_or(0.0)).collect();
+    let a: Vec<f64> = std::env::args()
+        .skip(1)
+        .map(|s| s.parse().unwrap_or(0.0))
+        .collect();
     let seconds = a.first().copied().unwrap_or(60.0);
     let mut p = SpatialMemoryParams::default();
     if let Some(&n) = a.get(1) {
@@ -21,7 +24,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         p.place.j1 = v[1];
         p.place.input_amp = v[2];
     }
-    if let Ok(v) = std::env::var("SUB") { p.max_substep_s = v.parse().unwrap(); }
+    if let Ok(v) = std::env::var("SUB") {
+        p.max_substep_s = v.parse().unwrap();
+    }
     let mut sm = SpatialMemory::<f32>::new(p)?;
     let dt = 0.1;
     let (mut x, mut y, mut yaw) = (0.0f64, 0.0f64, 0.0f64);
@@ -47,7 +52,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             let errs: Vec<String> = r
                 .modules
                 .iter()
-                .map(|m| format!("k{} {:.2}%", m.k, 100.0 * (m.position_m[0] - x).hypot(m.position_m[1] - y) / dist))
+                .map(|m| {
+                    format!(
+                        "k{} {:.2}%",
+                        m.k,
+                        100.0 * (m.position_m[0] - x).hypot(m.position_m[1] - y) / dist
+                    )
+                })
                 .collect();
             println!(
                 "t={:.0}s dist={dist:.0}m heading err {:.2}° (worst {:.2}°) ω̂ {:.3} vs {:.3} | {} | place {:.2}% σ {:?} fused σ {:?} bumps {:?}",
@@ -64,6 +75,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             );
         }
     }
-    println!("{:.1} ms per frame", t0.elapsed().as_secs_f64() * 1e3 / frames as f64);
+    println!(
+        "{:.1} ms per frame",
+        t0.elapsed().as_secs_f64() * 1e3 / frames as f64
+    );
     Ok(())
 }

@@ -73,7 +73,12 @@ pub fn array_len(name: &'static str, got: usize, expected: usize, shape: String)
     if got == expected {
         Ok(())
     } else {
-        Err(AttractorError::BadShape { name, got, expected, shape })
+        Err(AttractorError::BadShape {
+            name,
+            got,
+            expected,
+            shape,
+        })
     }
 }
 

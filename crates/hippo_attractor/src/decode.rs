@@ -37,7 +37,12 @@ pub fn find_bumps<T: Real>(pattern: &[T], n: usize, threshold_frac: f64) -> Vec<
             sx += p[u] * wrap(angle(x) - ax);
             sy += p[u] * wrap(angle(y) - ay);
             w += p[u];
-            for (nx, ny) in [((x + 1) % n, y), ((x + n - 1) % n, y), (x, (y + 1) % n), (x, (y + n - 1) % n)] {
+            for (nx, ny) in [
+                ((x + 1) % n, y),
+                ((x + n - 1) % n, y),
+                (x, (y + 1) % n),
+                (x, (y + n - 1) % n),
+            ] {
                 let v = ny * n + nx;
                 if p[v] > threshold && label[v] == usize::MAX {
                     label[v] = id;

@@ -71,7 +71,11 @@ pub fn step_with_implicit_inhibition<T: Real>(
     // Newton on the concave increasing F: from the right of the root the first step lands on the left,
     // from the left it climbs monotonically; a linear piece is solved exactly, so it stops when the
     // active set repeats.
-    let mut s = if guess.is_finite() { guess.max(0.0) } else { 0.0 };
+    let mut s = if guess.is_finite() {
+        guess.max(0.0)
+    } else {
+        0.0
+    };
     let mut last_active = usize::MAX;
     for _ in 0..64 {
         let (sum_pos, active) = positive_part(drive, T::of(j0 * s));
@@ -107,7 +111,9 @@ mod tests {
     /// The returned mean is the mean of the updated state: the implicit equation is solved exactly.
     #[test]
     fn implicit_mean_is_self_consistent() {
-        let drive: Vec<f64> = (0..500).map(|i| ((i as f64) * 0.37).sin() * 2.0 + 0.3).collect();
+        let drive: Vec<f64> = (0..500)
+            .map(|i| ((i as f64) * 0.37).sin() * 2.0 + 0.3)
+            .collect();
         let mut m: Vec<f64> = (0..500).map(|i| ((i as f64) * 0.11).cos().abs()).collect();
         let s = step_with_implicit_inhibition(&mut m, &drive, -5.0, decay(0.01, 0.01), 0.0);
         let mean = m.iter().sum::<f64>() / m.len() as f64;
@@ -122,7 +128,9 @@ mod tests {
         let a = decay(0.05, 0.01);
         let mut means = vec![];
         for _ in 0..20 {
-            means.push(step_with_implicit_inhibition(&mut m, &drive, -200.0, a, 0.5));
+            means.push(step_with_implicit_inhibition(
+                &mut m, &drive, -200.0, a, 0.5,
+            ));
         }
         // Fixed point of m = [1 − 200 m]_+ is 1/201; approached monotonically.
         let target = 1.0 / 201.0;

@@ -4,13 +4,26 @@ use thiserror::Error;
 #[derive(Debug, Error, Clone, PartialEq)]
 pub enum AttractorError {
     #[error("invalid parameter `{name}` = {value}: {why}")]
-    BadParameter { name: &'static str, value: String, why: String },
+    BadParameter {
+        name: &'static str,
+        value: String,
+        why: String,
+    },
     #[error("array `{name}` has {got} elements, expected {expected} ({shape})")]
-    BadShape { name: &'static str, got: usize, expected: usize, shape: String },
+    BadShape {
+        name: &'static str,
+        got: usize,
+        expected: usize,
+        shape: String,
+    },
     #[error("input `{name}` is not finite ({value}); check the odometry feeding the network")]
     NonFinite { name: &'static str, value: f64 },
     #[error("input `{name}` = {value} is outside the range the network can represent ({why})")]
-    OutOfRange { name: &'static str, value: f64, why: String },
+    OutOfRange {
+        name: &'static str,
+        value: f64,
+        why: String,
+    },
     #[error("array `{name}` contains a NaN or infinite value at index {index}")]
     NonFiniteArray { name: &'static str, index: usize },
     #[error("no bump to fuse: every grid module is lesioned or silent")]

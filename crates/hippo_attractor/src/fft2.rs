@@ -98,7 +98,9 @@ impl<T: Real> RealFft2<T> {
             }
         }
         for iy in 0..n {
-            scratch.row_spec.copy_from_slice(&scratch.half[iy * nh..(iy + 1) * nh]);
+            scratch
+                .row_spec
+                .copy_from_slice(&scratch.half[iy * nh..(iy + 1) * nh]);
             // A real signal's DC (and, for even n, Nyquist) bins are real; rounding leaves tiny imaginary
             // parts that realfft would reject, so drop them.
             scratch.row_spec[0].im = T::zero();

@@ -45,7 +45,8 @@ pub fn fuse_bumps(bumps: &[Bump2]) -> Result<FusedEstimate> {
             weighted_offset += p * wrap(b.mean_rad[axis] - reference.mean_rad[axis]);
         }
         let var = 1.0 / precision;
-        mean_rad[axis] = crate::circular::wrap_2pi(reference.mean_rad[axis] + var * weighted_offset);
+        mean_rad[axis] =
+            crate::circular::wrap_2pi(reference.mean_rad[axis] + var * weighted_offset);
         std_rad[axis] = var.sqrt();
     }
     Ok(FusedEstimate { mean_rad, std_rad })
@@ -67,7 +68,9 @@ pub fn fuse_homocentric(
             match prior {
                 Some(p) => *bumps
                     .iter()
-                    .min_by(|a, b| torus_distance(a.mean_rad, p).total_cmp(&torus_distance(b.mean_rad, p)))
+                    .min_by(|a, b| {
+                        torus_distance(a.mean_rad, p).total_cmp(&torus_distance(b.mean_rad, p))
+                    })
                     .ok_or(AttractorError::NothingToFuse)?,
                 None => *bumps
                     .iter()
@@ -99,7 +102,11 @@ mod tests {
     use super::*;
 
     fn bump(mx: f64, my: f64, sx: f64, sy: f64) -> Bump2 {
-        Bump2 { mean_rad: [mx, my], std_rad: [sx, sy], mass: 1.0 }
+        Bump2 {
+            mean_rad: [mx, my],
+            std_rad: [sx, sy],
+            mass: 1.0,
+        }
     }
 
     /// The paper's table (bold bumps of the 16-, 4- and 1-bump modules) and the spec's check value.
@@ -123,7 +130,12 @@ mod tests {
             bump(1.1, 0.9, 0.3, 0.3),
             bump(1.1 + std::f64::consts::PI, 0.9, 0.3, 0.3),
             bump(1.1, 0.9 + std::f64::consts::PI, 0.3, 0.3),
-            bump(1.1 + std::f64::consts::PI, 0.9 + std::f64::consts::PI, 0.3, 0.3),
+            bump(
+                1.1 + std::f64::consts::PI,
+                0.9 + std::f64::consts::PI,
+                0.3,
+                0.3,
+            ),
         ];
         let (fused, chosen) = fuse_homocentric(&[&coarse, &mid], None).unwrap();
         assert_eq!(chosen[1].mean_rad, [1.1, 0.9]);

@@ -91,7 +91,10 @@ impl GridParams {
             return Err(AttractorError::BadParameter {
                 name: "grid.n_theta",
                 value: self.n_theta.to_string(),
-                why: format!("must be a multiple of k = {} with at least 2 units per bump cell", self.k),
+                why: format!(
+                    "must be a multiple of k = {} with at least 2 units per bump cell",
+                    self.k
+                ),
             });
         }
         Ok(())
@@ -220,7 +223,12 @@ impl<T: Real> GridModule<T> {
     /// Set the state from a full conjunctive activity; it is projected onto the lattice-symmetric
     /// subspace (the average over the k² cells).
     pub fn set_activity(&mut self, m: &[T]) -> Result<()> {
-        check::array_len("grid activity", m.len(), self.params.n_units(), self.shape())?;
+        check::array_len(
+            "grid activity",
+            m.len(),
+            self.params.n_units(),
+            self.shape(),
+        )?;
         check::array_finite("grid activity", m)?;
         self.m = self.fold(m);
         Ok(())
@@ -329,7 +337,10 @@ impl<T: Real> GridModule<T> {
         let full = self.params.n_theta * self.params.n_theta;
         let scale = T::of(self.params.jk / (full * ns) as f64);
         // 1. Per presynaptic slice: exact circular convolution with that slice's kernel.
-        let active: Vec<bool> = m.chunks(n2).map(|c| c.iter().any(|&x| x != T::zero())).collect();
+        let active: Vec<bool> = m
+            .chunks(n2)
+            .map(|c| c.iter().any(|&x| x != T::zero()))
+            .collect();
         conv.par_chunks_mut(n2)
             .zip(m.par_chunks(n2))
             .enumerate()
@@ -337,7 +348,8 @@ impl<T: Real> GridModule<T> {
                 || self.fft.scratch(),
                 |scratch, (s, (out_s, m_s))| {
                     if active[s] {
-                        self.fft.convolve(m_s, &self.kernel_spectra[s], out_s, scale, scratch)
+                        self.fft
+                            .convolve(m_s, &self.kernel_spectra[s], out_s, scale, scratch)
                     } else {
                         out_s.iter_mut().for_each(|x| *x = T::zero());
                     }
@@ -378,14 +390,24 @@ impl<T: Real> GridModule<T> {
         drive.par_chunks_mut(n2).enumerate().for_each(|(s, d)| {
             let v = slices[s];
             let dist2 = (v[0] - u[0]).powi(2) + (v[1] - u[1]).powi(2);
-            let input =
-                T::of(p.input_amp * (1.0 - p.input_tuning + p.input_tuning * (-dist2 / two_s2).exp()));
+            let input = T::of(
+                p.input_amp * (1.0 - p.input_tuning + p.input_tuning * (-dist2 / two_s2).exp()),
+            );
             match &view_cell {
-                Some(pattern) => d.iter_mut().zip(pattern).for_each(|(x, &w)| *x = *x + input + w),
+                Some(pattern) => d
+                    .iter_mut()
+                    .zip(pattern)
+                    .for_each(|(x, &w)| *x = *x + input + w),
                 None => d.iter_mut().for_each(|x| *x = *x + input),
             }
         });
-        let mean = step_with_implicit_inhibition(&mut self.m, &drive, p.j0, dynamics::decay(dt_s, tau_s), self.mean_guess);
+        let mean = step_with_implicit_inhibition(
+            &mut self.m,
+            &drive,
+            p.j0,
+            dynamics::decay(dt_s, tau_s),
+            self.mean_guess,
+        );
         self.mean_guess = mean;
         self.drive = drive;
         self.conv = conv;

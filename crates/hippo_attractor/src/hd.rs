@@ -168,7 +168,10 @@ impl<T: Real> HdRing<T> {
     }
 
     pub fn shape(&self) -> String {
-        format!("(n_nu={}, n_theta={})", self.params.n_nu, self.params.n_theta)
+        format!(
+            "(n_nu={}, n_theta={})",
+            self.params.n_nu, self.params.n_theta
+        )
     }
 
     /// Place a cosine bump at `heading_rad` on the zero-velocity row region.
@@ -257,7 +260,8 @@ impl<T: Real> HdRing<T> {
         let (nt, nv) = (self.params.n_theta, self.params.n_nu);
         let lim = self.params.nu_max;
         // Feed-forward target plus an integral correction (a PI loop without lag on velocity changes).
-        self.pin_bias = (self.pin_bias + self.params.pin_gain * (u - self.nu_mean())).clamp(-lim, lim);
+        self.pin_bias =
+            (self.pin_bias + self.params.pin_gain * (u - self.nu_mean())).clamp(-lim, lim);
         let u = (u + self.pin_bias).clamp(-lim, lim);
         let mut drive = std::mem::take(&mut self.drive);
         self.recurrent_input(&self.m, &mut drive);
@@ -267,7 +271,8 @@ impl<T: Real> HdRing<T> {
             let input = T::of(
                 p.input_amp
                     * (1.0 - p.input_tuning
-                        + p.input_tuning * (-(d * d) / (2.0 * p.input_sigma * p.input_sigma)).exp()),
+                        + p.input_tuning
+                            * (-(d * d) / (2.0 * p.input_sigma * p.input_sigma)).exp()),
             );
             for i in 0..nt {
                 drive[j * nt + i] = drive[j * nt + i] + input;
@@ -278,8 +283,13 @@ impl<T: Real> HdRing<T> {
                 }
             }
         }
-        let mean =
-            step_with_implicit_inhibition(&mut self.m, &drive, p.j0, dynamics::decay(dt_s, tau_s), self.mean_guess);
+        let mean = step_with_implicit_inhibition(
+            &mut self.m,
+            &drive,
+            p.j0,
+            dynamics::decay(dt_s, tau_s),
+            self.mean_guess,
+        );
         self.mean_guess = mean;
         self.drive = drive;
         if !mean.is_finite() {

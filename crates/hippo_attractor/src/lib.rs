@@ -29,4 +29,6 @@ pub use grid::{GridModule, GridParams};
 pub use hd::{HdParams, HdReadout, HdRing};
 pub use place::{PlaceNetwork, PlaceParams};
 pub use real::Real;
-pub use spatial_memory::{AuxState, ModuleReadout, SpatialMemory, SpatialMemoryParams, SpatialReadout, ViewInjection};
+pub use spatial_memory::{
+    AuxState, ModuleReadout, SpatialMemory, SpatialMemoryParams, SpatialReadout, ViewInjection,
+};

@@ -28,7 +28,12 @@ pub struct PlaceParams {
 
 impl Default for PlaceParams {
     fn default() -> Self {
-        Self { n_theta: 64, j0: -2.0, j1: 1.5, input_amp: 1.0 }
+        Self {
+            n_theta: 64,
+            j0: -2.0,
+            j1: 1.5,
+            input_amp: 1.0,
+        }
     }
 }
 
@@ -116,7 +121,8 @@ impl<T: Real> PlaceNetwork<T> {
     fn zero_mean_recurrent_input(&mut self, m: &[T], out: &mut [T]) {
         let n2 = (self.params.n_theta * self.params.n_theta) as f64;
         let scale = T::of(self.params.j1 / n2);
-        self.fft.convolve(m, &self.kernel_spectrum, out, scale, &mut self.scratch);
+        self.fft
+            .convolve(m, &self.kernel_spectrum, out, scale, &mut self.scratch);
     }
 
     /// Set the Gaussian place input from a fused grid estimate (or silence it with `None`).
@@ -132,8 +138,10 @@ impl<T: Real> PlaceNetwork<T> {
                     let dy = wrap(TAU * iy as f64 / n as f64 - my);
                     for ix in 0..n {
                         let dx = wrap(TAU * ix as f64 / n as f64 - mx);
-                        self.input[iy * n + ix] =
-                            T::of(amp * (-(dx * dx) / (2.0 * sx * sx) - (dy * dy) / (2.0 * sy * sy)).exp());
+                        self.input[iy * n + ix] = T::of(
+                            amp * (-(dx * dx) / (2.0 * sx * sx) - (dy * dy) / (2.0 * sy * sy))
+                                .exp(),
+                        );
                     }
                 }
             }
@@ -149,8 +157,13 @@ impl<T: Real> PlaceNetwork<T> {
             *d = *d + i;
         }
         let inhibition = self.params.j0 + self.params.j1 * self.kernel_mean;
-        let mean =
-            step_with_implicit_inhibition(&mut self.m, &drive, inhibition, dynamics::decay(dt_s, tau_s), self.mean_guess);
+        let mean = step_with_implicit_inhibition(
+            &mut self.m,
+            &drive,
+            inhibition,
+            dynamics::decay(dt_s, tau_s),
+            self.mean_guess,
+        );
         self.mean_guess = mean;
         self.drive = drive;
         if !mean.is_finite() {

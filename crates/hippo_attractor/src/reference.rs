@@ -72,7 +72,10 @@ impl<T: crate::real::Real> DenseGridWeights<T> {
         let scale = p.jk / n_units as f64;
         let theta = |u: usize| {
             let t = u % n2;
-            [TAU * (t % n) as f64 / n as f64, TAU * (t / n) as f64 / n as f64]
+            [
+                TAU * (t % n) as f64 / n as f64,
+                TAU * (t / n) as f64 / n as f64,
+            ]
         };
         let mut weights = Vec::with_capacity(n_units * n_units);
         for post in 0..n_units {
@@ -89,7 +92,10 @@ impl<T: crate::real::Real> DenseGridWeights<T> {
     /// `h = W m` (dense matrix–vector product).
     pub fn apply(&self, m: &[T], h: &mut [T]) {
         for (row, out) in self.weights.chunks(self.n_units).zip(h.iter_mut()) {
-            *out = row.iter().zip(m).fold(T::zero(), |acc, (&w, &x)| acc + w * x);
+            *out = row
+                .iter()
+                .zip(m)
+                .fold(T::zero(), |acc, (&w, &x)| acc + w * x);
         }
     }
 }

@@ -52,7 +52,11 @@ impl Default for SpatialMemoryParams {
             max_substep_s: 0.025,
             torus_period_m: 100.0,
             hd: HdParams::default(),
-            grid: [GridParams::for_module(1), GridParams::for_module(2), GridParams::for_module(4)],
+            grid: [
+                GridParams::for_module(1),
+                GridParams::for_module(2),
+                GridParams::for_module(4),
+            ],
             place: PlaceParams::default(),
             bump_threshold_frac: 0.3,
             lesioned: [false; N_MODULES],
@@ -86,7 +90,10 @@ impl SpatialMemoryParams {
                 return Err(AttractorError::BadParameter {
                     name: "grid.n_theta",
                     value: g.n_theta.to_string(),
-                    why: format!("must equal place.n_theta = {} (one shared torus)", self.place.n_theta),
+                    why: format!(
+                        "must equal place.n_theta = {} (one shared torus)",
+                        self.place.n_theta
+                    ),
                 });
             }
         }
@@ -207,7 +214,8 @@ impl<T: Real> SpatialMemory<T> {
         for g in &mut self.grids {
             g.seed(phase_rad);
         }
-        self.place.set_activity(&vec![T::zero(); self.params.place.n_theta.pow(2)])?;
+        self.place
+            .set_activity(&vec![T::zero(); self.params.place.n_theta.pow(2)])?;
         self.tracked = [phase_rad; N_MODULES];
         self.place_tracked = None;
         self.last_fused = None;
@@ -234,7 +242,11 @@ impl<T: Real> SpatialMemory<T> {
         AuxState {
             time_s: self.time_s,
             hd_pin_bias: self.hd.pin_bias(),
-            grid_pin_bias: [self.grids[0].pin_bias(), self.grids[1].pin_bias(), self.grids[2].pin_bias()],
+            grid_pin_bias: [
+                self.grids[0].pin_bias(),
+                self.grids[1].pin_bias(),
+                self.grids[2].pin_bias(),
+            ],
             tracked_rad: self.tracked,
             module_pos_rad: self.module_pos_rad,
             place_tracked_rad: self.place_tracked,
@@ -298,7 +310,11 @@ impl<T: Real> SpatialMemory<T> {
         self.hd.velocity_target(yaw_rate_rad_s, tau_eff)?;
         for g in &self.grids {
             g.velocity_target([speed_m_s, 0.0], self.params.torus_period_m, tau_eff)?;
-            g.velocity_target([speed_m_s / std::f64::consts::SQRT_2; 2], self.params.torus_period_m, tau_eff)?;
+            g.velocity_target(
+                [speed_m_s / std::f64::consts::SQRT_2; 2],
+                self.params.torus_period_m,
+                tau_eff,
+            )?;
         }
         for _ in 0..n {
             self.substep(yaw_rate_rad_s, speed_m_s, sub_dt, view)?;
@@ -310,7 +326,12 @@ impl<T: Real> SpatialMemory<T> {
     fn check_view(&self, v: &ViewInjection<T>) -> Result<()> {
         check::input("view strength", v.strength)?;
         let nt = self.params.hd.n_theta;
-        check::array_len("view hd_profile", v.hd_profile.len(), nt, format!("({nt},)"))?;
+        check::array_len(
+            "view hd_profile",
+            v.hd_profile.len(),
+            nt,
+            format!("({nt},)"),
+        )?;
         check::array_finite("view hd_profile", &v.hd_profile)?;
         let n = self.params.place.n_theta;
         for g in v.grid_layer2.iter().flatten() {
@@ -346,7 +367,8 @@ impl<T: Real> SpatialMemory<T> {
             let g_view = view.and_then(|v| v.grid_layer2[m].as_ref().map(|p| scale(p, v.strength)));
             self.grids[m].step(u, g_view.as_deref(), dt_s, tau)?;
             let n = self.params.grid[m].n_theta;
-            self.last_bumps[m] = find_bumps(&self.grids[m].layer2(), n, self.params.bump_threshold_frac);
+            self.last_bumps[m] =
+                find_bumps(&self.grids[m].layer2(), n, self.params.bump_threshold_frac);
             if let Some(b) = nearest(&self.last_bumps[m], self.tracked[m]) {
                 for a in 0..2 {
                     self.module_pos_rad[m][a] += wrap(b.mean_rad[a] - self.tracked[m][a]);
@@ -355,7 +377,9 @@ impl<T: Real> SpatialMemory<T> {
             }
         }
         // 3. Bayesian fusion (coarsest module first) → place input → place network.
-        let slices: Vec<&[Bump2]> = (0..N_MODULES).map(|m| self.last_bumps[m].as_slice()).collect();
+        let slices: Vec<&[Bump2]> = (0..N_MODULES)
+            .map(|m| self.last_bumps[m].as_slice())
+            .collect();
         let prior = self.last_fused.map(|f| f.mean_rad);
         self.last_fused = match fuse_homocentric(&slices, prior) {
             Ok((f, _)) => Some(f),
@@ -392,7 +416,10 @@ impl<T: Real> SpatialMemory<T> {
                     lesioned: self.params.lesioned[m],
                     bumps: self.last_bumps[m].clone(),
                     tracked_rad: self.tracked[m],
-                    position_m: [self.module_pos_rad[m][0] * to_m, self.module_pos_rad[m][1] * to_m],
+                    position_m: [
+                        self.module_pos_rad[m][0] * to_m,
+                        self.module_pos_rad[m][1] * to_m,
+                    ],
                 })
                 .collect(),
             fused: self.last_fused,

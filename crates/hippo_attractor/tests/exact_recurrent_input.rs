@@ -5,10 +5,14 @@ use hippo_attractor::{GridModule, GridParams, HdParams, HdRing, PlaceNetwork, Pl
 
 /// Deterministic pseudo-random activity with some exact zeros (silent units and silent velocity slices).
 fn activity(len: usize, seed: u64, zero_every: usize) -> Vec<f64> {
-    let mut x = seed.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+    let mut x = seed
+        .wrapping_mul(6364136223846793005)
+        .wrapping_add(1442695040888963407);
     (0..len)
         .map(|i| {
-            x = x.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+            x = x
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
             let v = (x >> 11) as f64 / (1u64 << 53) as f64;
             if i % zero_every == 0 || v < 0.3 {
                 0.0
@@ -21,13 +25,20 @@ fn activity(len: usize, seed: u64, zero_every: usize) -> Vec<f64> {
 
 fn max_abs_diff(a: &[f64], b: &[f64]) -> f64 {
     assert_eq!(a.len(), b.len());
-    a.iter().zip(b).map(|(x, y)| (x - y).abs()).fold(0.0, f64::max)
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
 }
 
 #[test]
 fn hd_ring_fast_path_equals_dense() {
     for (nt, nv) in [(16, 5), (13, 4), (32, 1)] {
-        let p = HdParams { n_theta: nt, n_nu: nv, ..HdParams::default() };
+        let p = HdParams {
+            n_theta: nt,
+            n_nu: nv,
+            ..HdParams::default()
+        };
         let ring = HdRing::<f64>::new(p.clone()).unwrap();
         let m = activity(nt * nv, 7, 5);
         let mut fast = vec![0.0; m.len()];
@@ -35,7 +46,10 @@ fn hd_ring_fast_path_equals_dense() {
         let dense = reference::hd_recurrent(&p, &m);
         let err = max_abs_diff(&fast, &dense);
         assert!(err < 1e-10, "Nθ={nt} Nν={nv}: {err}");
-        assert!(dense.iter().any(|x| x.abs() > 1e-3), "non-trivial comparison");
+        assert!(
+            dense.iter().any(|x| x.abs() > 1e-3),
+            "non-trivial comparison"
+        );
     }
 }
 
@@ -43,7 +57,11 @@ fn hd_ring_fast_path_equals_dense() {
 fn grid_fast_path_equals_dense_for_every_module() {
     for k in [1usize, 2, 4] {
         for (n, m_nu) in [(8usize, 3usize), (12, 2)] {
-            let p = GridParams { n_theta: n, n_nu: m_nu, ..GridParams::for_module(k) };
+            let p = GridParams {
+                n_theta: n,
+                n_nu: m_nu,
+                ..GridParams::for_module(k)
+            };
             let module = GridModule::<f64>::new(p.clone()).unwrap();
             let c = p.cell();
             // The module integrates lattice-periodic activity: a random unit cell, tiled.
@@ -65,7 +83,10 @@ fn grid_fast_path_equals_dense_for_every_module() {
 #[test]
 fn place_fast_path_equals_dense() {
     for n in [8usize, 11] {
-        let p = PlaceParams { n_theta: n, ..PlaceParams::default() };
+        let p = PlaceParams {
+            n_theta: n,
+            ..PlaceParams::default()
+        };
         let mut net = PlaceNetwork::<f64>::new(p.clone()).unwrap();
         let m = activity(n * n, 3, 4);
         let mut fast = vec![0.0; m.len()];
@@ -78,22 +99,38 @@ fn place_fast_path_equals_dense() {
 
 #[test]
 fn single_precision_fast_path_tracks_double() {
-    let p = GridParams { n_theta: 16, n_nu: 3, ..GridParams::for_module(2) };
+    let p = GridParams {
+        n_theta: 16,
+        n_nu: 3,
+        ..GridParams::for_module(2)
+    };
     let m64 = activity(p.cell() * p.cell() * p.n_slices(), 11, 9);
     let m32: Vec<f32> = m64.iter().map(|&x| x as f32).collect();
     let mut h64 = vec![0.0; m64.len()];
     let mut h32 = vec![0.0f32; m32.len()];
-    GridModule::<f64>::new(p.clone()).unwrap().recurrent_input(&m64, &mut h64);
-    GridModule::<f32>::new(p).unwrap().recurrent_input(&m32, &mut h32);
+    GridModule::<f64>::new(p.clone())
+        .unwrap()
+        .recurrent_input(&m64, &mut h64);
+    GridModule::<f32>::new(p)
+        .unwrap()
+        .recurrent_input(&m32, &mut h32);
     let scale = h64.iter().map(|x| x.abs()).fold(0.0, f64::max);
-    let err = h64.iter().zip(&h32).map(|(a, &b)| (a - b as f64).abs()).fold(0.0, f64::max);
+    let err = h64
+        .iter()
+        .zip(&h32)
+        .map(|(a, &b)| (a - b as f64).abs())
+        .fold(0.0, f64::max);
     assert!(err < 1e-4 * scale, "{err} vs scale {scale}");
 }
 
 /// The default torus size (N = 64: FFT planners pick different algorithms than at N = 8).
 #[test]
 fn grid_fast_path_equals_dense_at_the_default_torus_size() {
-    let p = GridParams { n_theta: 64, n_nu: 2, ..GridParams::for_module(1) };
+    let p = GridParams {
+        n_theta: 64,
+        n_nu: 2,
+        ..GridParams::for_module(1)
+    };
     let module = GridModule::<f64>::new(p.clone()).unwrap();
     let m = activity(p.n_units(), 5, 13);
     let mut fast = vec![0.0; m.len()];
@@ -106,7 +143,11 @@ fn grid_fast_path_equals_dense_at_the_default_torus_size() {
 /// Folding and tiling are inverse on periodic activity, and folding averages the k² cells.
 #[test]
 fn fold_tile_round_trip() {
-    let p = GridParams { n_theta: 16, n_nu: 2, ..GridParams::for_module(4) };
+    let p = GridParams {
+        n_theta: 16,
+        n_nu: 2,
+        ..GridParams::for_module(4)
+    };
     let module = GridModule::<f64>::new(p.clone()).unwrap();
     let cell = activity(p.cell() * p.cell() * p.n_slices(), 3, 5);
     assert!(max_abs_diff(&module.fold(&module.tile(&cell)), &cell) < 1e-12);

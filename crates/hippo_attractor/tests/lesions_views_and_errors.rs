@@ -13,7 +13,10 @@ fn place_width_rad(sm: &mut SpatialMemory<f32>, lesioned: [bool; 3]) -> (f64, f6
         let f = r.fused.expect("fused estimate");
         fused.push(0.5 * (f.std_rad[0] + f.std_rad[1]));
     }
-    (widths[5..].iter().sum::<f64>() / 5.0, fused[5..].iter().sum::<f64>() / 5.0)
+    (
+        widths[5..].iter().sum::<f64>() / 5.0,
+        fused[5..].iter().sum::<f64>() / 5.0,
+    )
 }
 
 /// SPEC §4/§6: every lesion widens the place field; losing the dorsal (finest, smallest σ) module widens it
@@ -24,15 +27,25 @@ fn lesions_widen_the_place_bump_in_the_order_the_theory_predicts() {
     let (red, red_in) = place_width_rad(&mut sm, [false, false, false]);
     let (green, green_in) = place_width_rad(&mut sm, [true, false, false]);
     let (yellow, yellow_in) = place_width_rad(&mut sm, [false, false, true]);
-    assert!(yellow_in > green_in && green_in > red_in, "fused widths {red_in} {green_in} {yellow_in}");
-    assert!(yellow > green && green > red, "place widths red {red} green {green} yellow {yellow}");
+    assert!(
+        yellow_in > green_in && green_in > red_in,
+        "fused widths {red_in} {green_in} {yellow_in}"
+    );
+    assert!(
+        yellow > green && green > red,
+        "place widths red {red} green {green} yellow {yellow}"
+    );
     // The theory's closed form, from the measured module widths, predicts the fused widths.
     place_width_rad(&mut sm, [false, false, false]);
     let r = sm.readout();
-    let sig: Vec<f64> = r.modules.iter().map(|m| {
-        let b = &m.bumps[0];
-        0.5 * (b.std_rad[0] + b.std_rad[1])
-    }).collect();
+    let sig: Vec<f64> = r
+        .modules
+        .iter()
+        .map(|m| {
+            let b = &m.bumps[0];
+            0.5 * (b.std_rad[0] + b.std_rad[1])
+        })
+        .collect();
     let fuse = |s: &[f64]| 1.0 / s.iter().map(|x| 1.0 / (x * x)).sum::<f64>().sqrt();
     assert!((fuse(&sig[1..]) - green_in).abs() / green_in < 0.1);
     assert!((fuse(&sig[..2]) - yellow_in).abs() / yellow_in < 0.1);
@@ -54,7 +67,11 @@ fn view_injection_recalls_the_stored_heading_and_position() {
     let mut sm = SpatialMemory::<f32>::new(SpatialMemoryParams::default()).unwrap();
     let stored = ViewInjection {
         hd_profile: sm.hd.theta_profile(),
-        grid_layer2: [Some(sm.grids[0].layer2()), Some(sm.grids[1].layer2()), Some(sm.grids[2].layer2())],
+        grid_layer2: [
+            Some(sm.grids[0].layer2()),
+            Some(sm.grids[1].layer2()),
+            Some(sm.grids[2].layer2()),
+        ],
         strength: 0.0,
     };
     let start = sm.readout();
@@ -63,35 +80,100 @@ fn view_injection_recalls_the_stored_heading_and_position() {
         sm.step(1.0, 12.0, 0.1, None).unwrap();
     }
     let away = sm.readout();
-    let heading_gap = |r: &hippo_attractor::SpatialReadout| wrap(r.hd.heading_rad - start.hd.heading_rad).abs();
+    let heading_gap =
+        |r: &hippo_attractor::SpatialReadout| wrap(r.hd.heading_rad - start.hd.heading_rad).abs();
     let place_gap = |r: &hippo_attractor::SpatialReadout| {
         let (a, b) = (r.place.unwrap().mean_rad, start.place.unwrap().mean_rad);
         wrap(a[0] - b[0]).hypot(wrap(a[1] - b[1]))
     };
     assert!(heading_gap(&away) > 0.3 && place_gap(&away) > 0.2);
-    let view = ViewInjection { strength: 3.0, ..stored };
+    let view = ViewInjection {
+        strength: 3.0,
+        ..stored
+    };
     for _ in 0..10 {
         sm.step(0.0, 0.0, 0.1, Some(&view)).unwrap();
     }
     let back = sm.readout();
-    assert!(heading_gap(&back) < 0.25 * heading_gap(&away), "heading {} → {}", heading_gap(&away), heading_gap(&back));
-    assert!(place_gap(&back) < 0.25 * place_gap(&away), "place {} → {}", place_gap(&away), place_gap(&back));
+    assert!(
+        heading_gap(&back) < 0.25 * heading_gap(&away),
+        "heading {} → {}",
+        heading_gap(&away),
+        heading_gap(&back)
+    );
+    assert!(
+        place_gap(&back) < 0.25 * place_gap(&away),
+        "place {} → {}",
+        place_gap(&away),
+        place_gap(&back)
+    );
 }
 
 #[test]
 fn bad_parameters_are_rejected_with_the_parameter_named() {
     let cases: Vec<(SpatialMemoryParams, &str)> = vec![
-        ({ let mut p = SpatialMemoryParams::default(); p.hd.n_theta = 0; p }, "hd.n_theta"),
-        ({ let mut p = SpatialMemoryParams::default(); p.grid[1].n_nu = 0; p }, "grid.n_nu"),
-        ({ let mut p = SpatialMemoryParams::default(); p.tau_s = f64::NAN; p }, "tau_s"),
-        ({ let mut p = SpatialMemoryParams::default(); p.grid[0].jk = f64::INFINITY; p }, "grid.jk"),
-        ({ let mut p = SpatialMemoryParams::default(); p.grid[2].j0 = 5.0; p }, "grid.j0"),
-        ({ let mut p = SpatialMemoryParams::default(); p.max_substep_s = 0.2; p }, "max_substep_s"),
-        ({ let mut p = SpatialMemoryParams::default(); p.grid[0].n_theta = 32; p }, "grid.n_theta"),
+        (
+            {
+                let mut p = SpatialMemoryParams::default();
+                p.hd.n_theta = 0;
+                p
+            },
+            "hd.n_theta",
+        ),
+        (
+            {
+                let mut p = SpatialMemoryParams::default();
+                p.grid[1].n_nu = 0;
+                p
+            },
+            "grid.n_nu",
+        ),
+        (
+            {
+                let mut p = SpatialMemoryParams::default();
+                p.tau_s = f64::NAN;
+                p
+            },
+            "tau_s",
+        ),
+        (
+            {
+                let mut p = SpatialMemoryParams::default();
+                p.grid[0].jk = f64::INFINITY;
+                p
+            },
+            "grid.jk",
+        ),
+        (
+            {
+                let mut p = SpatialMemoryParams::default();
+                p.grid[2].j0 = 5.0;
+                p
+            },
+            "grid.j0",
+        ),
+        (
+            {
+                let mut p = SpatialMemoryParams::default();
+                p.max_substep_s = 0.2;
+                p
+            },
+            "max_substep_s",
+        ),
+        (
+            {
+                let mut p = SpatialMemoryParams::default();
+                p.grid[0].n_theta = 32;
+                p
+            },
+            "grid.n_theta",
+        ),
     ];
     for (params, name) in cases {
         match SpatialMemory::<f32>::new(params) {
-            Err(e @ AttractorError::BadParameter { .. }) => assert!(e.to_string().contains(name), "{e}"),
+            Err(e @ AttractorError::BadParameter { .. }) => {
+                assert!(e.to_string().contains(name), "{e}")
+            }
             Err(e) => panic!("{name}: unexpected error {e}"),
             Ok(_) => panic!("{name}: accepted"),
         }
@@ -106,17 +188,39 @@ fn bad_inputs_are_rejected_and_leave_the_state_untouched() {
     sm.step(0.1, 5.0, 0.1, None).unwrap();
     let before = sm.readout();
     let hd_before = sm.hd.activity().to_vec();
-    for (w, v, dt) in [(f64::NAN, 1.0, 0.1), (0.0, f64::INFINITY, 0.1), (0.0, 1.0, -0.1), (0.0, 1.0, f64::NAN)] {
-        assert!(matches!(sm.step(w, v, dt, None), Err(AttractorError::NonFinite { .. } | AttractorError::OutOfRange { .. })));
+    for (w, v, dt) in [
+        (f64::NAN, 1.0, 0.1),
+        (0.0, f64::INFINITY, 0.1),
+        (0.0, 1.0, -0.1),
+        (0.0, 1.0, f64::NAN),
+    ] {
+        assert!(matches!(
+            sm.step(w, v, dt, None),
+            Err(AttractorError::NonFinite { .. } | AttractorError::OutOfRange { .. })
+        ));
     }
     // Absurd speeds and turn rates (a VO failure) are refused, not integrated.
     let e = sm.step(0.0, 500.0, 0.1, None).unwrap_err();
     assert!(e.to_string().contains("m/s"), "{e}");
     assert!(sm.step(50.0, 1.0, 0.1, None).is_err());
-    let bad_view = ViewInjection { hd_profile: vec![0.0f32; 3], grid_layer2: [None, None, None], strength: 1.0 };
-    assert!(matches!(sm.step(0.0, 1.0, 0.1, Some(&bad_view)), Err(AttractorError::BadShape { .. })));
-    let nan_view = ViewInjection { hd_profile: vec![f32::NAN; 128], grid_layer2: [None, None, None], strength: 1.0 };
-    assert!(matches!(sm.step(0.0, 1.0, 0.1, Some(&nan_view)), Err(AttractorError::NonFiniteArray { .. })));
+    let bad_view = ViewInjection {
+        hd_profile: vec![0.0f32; 3],
+        grid_layer2: [None, None, None],
+        strength: 1.0,
+    };
+    assert!(matches!(
+        sm.step(0.0, 1.0, 0.1, Some(&bad_view)),
+        Err(AttractorError::BadShape { .. })
+    ));
+    let nan_view = ViewInjection {
+        hd_profile: vec![f32::NAN; 128],
+        grid_layer2: [None, None, None],
+        strength: 1.0,
+    };
+    assert!(matches!(
+        sm.step(0.0, 1.0, 0.1, Some(&nan_view)),
+        Err(AttractorError::NonFiniteArray { .. })
+    ));
     assert_eq!(sm.readout(), before);
     assert_eq!(sm.hd.activity(), &hd_before[..]);
 }

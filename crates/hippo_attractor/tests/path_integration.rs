@@ -3,7 +3,9 @@
 use hippo_attractor::circular::wrap;
 use hippo_attractor::decode::find_bumps;
 use hippo_attractor::dynamics::tau_effective;
-use hippo_attractor::{GridModule, GridParams, HdParams, HdRing, SpatialMemory, SpatialMemoryParams};
+use hippo_attractor::{
+    GridModule, GridParams, HdParams, HdRing, SpatialMemory, SpatialMemoryParams,
+};
 
 const TAU_S: f64 = 0.01;
 
@@ -25,7 +27,8 @@ fn hd_ring_integrates_a_varying_turn_rate() {
     let steps = (60.0 / dt) as usize;
     for i in 0..steps {
         let w = yaw_rate(i as f64 * dt);
-        ring.step(ring.velocity_target(w, te).unwrap(), None, dt, TAU_S).unwrap();
+        ring.step(ring.velocity_target(w, te).unwrap(), None, dt, TAU_S)
+            .unwrap();
         truth += w * dt;
         let r = ring.readout(te);
         worst_heading = worst_heading.max(wrap(r.heading_rad - truth).abs());
@@ -35,8 +38,16 @@ fn hd_ring_integrates_a_varying_turn_rate() {
             worst_rate = worst_rate.max(err);
         }
     }
-    assert!(worst_heading.to_degrees() < 2.0, "heading error {:.3}°", worst_heading.to_degrees());
-    assert!(worst_rate < 0.05, "angular velocity error {:.2} %", worst_rate * 100.0);
+    assert!(
+        worst_heading.to_degrees() < 2.0,
+        "heading error {:.3}°",
+        worst_heading.to_degrees()
+    );
+    assert!(
+        worst_rate < 0.05,
+        "angular velocity error {:.2} %",
+        worst_rate * 100.0
+    );
 }
 
 #[test]
@@ -79,8 +90,10 @@ fn a_grid_bump_moves_at_the_commanded_speed_in_any_direction() {
                 let b = bumps
                     .iter()
                     .min_by(|a, b| {
-                        let da = wrap(a.mean_rad[0] - tracked[0]).hypot(wrap(a.mean_rad[1] - tracked[1]));
-                        let db = wrap(b.mean_rad[0] - tracked[0]).hypot(wrap(b.mean_rad[1] - tracked[1]));
+                        let da = wrap(a.mean_rad[0] - tracked[0])
+                            .hypot(wrap(a.mean_rad[1] - tracked[1]));
+                        let db = wrap(b.mean_rad[0] - tracked[0])
+                            .hypot(wrap(b.mean_rad[1] - tracked[1]));
                         da.total_cmp(&db)
                     })
                     .unwrap();
@@ -89,9 +102,16 @@ fn a_grid_bump_moves_at_the_commanded_speed_in_any_direction() {
                 tracked = b.mean_rad;
             }
             let t = steps as f64 * dt;
-            let expected = [v[0] * t * std::f64::consts::TAU / period_m, v[1] * t * std::f64::consts::TAU / period_m];
-            let err = (moved[0] - expected[0]).hypot(moved[1] - expected[1]) / expected[0].hypot(expected[1]);
-            assert!(err < 0.03, "k={k} speed {speed}: moved {moved:?} expected {expected:?}");
+            let expected = [
+                v[0] * t * std::f64::consts::TAU / period_m,
+                v[1] * t * std::f64::consts::TAU / period_m,
+            ];
+            let err = (moved[0] - expected[0]).hypot(moved[1] - expected[1])
+                / expected[0].hypot(expected[1]);
+            assert!(
+                err < 0.03,
+                "k={k} speed {speed}: moved {moved:?} expected {expected:?}"
+            );
         }
     }
 }
@@ -122,15 +142,29 @@ fn whole_network_path_integrates_a_car_trajectory() {
     assert!(dist > 900.0);
     for m in &r.modules {
         let err = (m.position_m[0] - x).hypot(m.position_m[1] - y) / dist;
-        assert!(err < 0.02, "module k={} error {:.2} % of {dist:.0} m", m.k, err * 100.0);
+        assert!(
+            err < 0.02,
+            "module k={} error {:.2} % of {dist:.0} m",
+            m.k,
+            err * 100.0
+        );
     }
     for a in &r.modules {
         for b in &r.modules {
             let gap = (a.position_m[0] - b.position_m[0]).hypot(a.position_m[1] - b.position_m[1]);
-            assert!(gap / dist < 0.02, "modules k={} and k={} disagree by {gap:.1} m", a.k, b.k);
+            assert!(
+                gap / dist < 0.02,
+                "modules k={} and k={} disagree by {gap:.1} m",
+                a.k,
+                b.k
+            );
         }
     }
     let place_err = (r.place_position_m[0] - x).hypot(r.place_position_m[1] - y) / dist;
-    assert!(place_err < 0.02, "place code error {:.2} %", place_err * 100.0);
+    assert!(
+        place_err < 0.02,
+        "place code error {:.2} %",
+        place_err * 100.0
+    );
     assert!(wrap(r.hd.heading_rad - yaw).abs().to_degrees() < 2.0);
 }

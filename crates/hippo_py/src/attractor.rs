@@ -7,7 +7,9 @@ use crate::errors::{to_py_err, HippoNavError};
 use hippo_attractor::{
     decode, fuse_homocentric, Bump2, SpatialMemory, SpatialMemoryParams, ViewInjection,
 };
-use numpy::{IntoPyArray, PyArray1, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArrayMethods};
+use numpy::{
+    IntoPyArray, PyArray1, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArrayMethods,
+};
 use pyo3::prelude::*;
 
 /// Copy any-layout float64 array into a flat row-major vector after checking its shape.
@@ -192,18 +194,32 @@ impl PySpatialMemory {
     }
 
     /// Conjunctive activity of grid module `index`, shape (M, M, N, N) = (νy, νx, θy, θx).
-    fn grid_activity<'py>(&self, py: Python<'py>, index: usize) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+    fn grid_activity<'py>(
+        &self,
+        py: Python<'py>,
+        index: usize,
+    ) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         with_engine!(&self.engine, sm, T, {
-            let g = sm.grids.get(index).ok_or_else(|| module_index_error(index))?;
+            let g = sm
+                .grids
+                .get(index)
+                .ok_or_else(|| module_index_error(index))?;
             let p = g.params();
             into_numpy(py, g.activity(), &[p.n_nu, p.n_nu, p.n_theta, p.n_theta])
         })
     }
 
     /// Layer-II pattern of grid module `index` (summed over velocity), shape (N, N) = (θy, θx).
-    fn grid_layer2<'py>(&self, py: Python<'py>, index: usize) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+    fn grid_layer2<'py>(
+        &self,
+        py: Python<'py>,
+        index: usize,
+    ) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         with_engine!(&self.engine, sm, T, {
-            let g = sm.grids.get(index).ok_or_else(|| module_index_error(index))?;
+            let g = sm
+                .grids
+                .get(index)
+                .ok_or_else(|| module_index_error(index))?;
             let n = g.params().n_theta;
             into_numpy(py, g.layer2(), &[n, n])
         })
@@ -243,15 +259,25 @@ impl PySpatialMemory {
         let aux: hippo_attractor::AuxState = serde_json::from_str(aux_json)
             .map_err(|e| HippoNavError::new_err(format!("invalid saved network state: {e}")))?;
         let (hp, gp, pp) = with_engine!(&self.engine, sm, T, {
-            (sm.params().hd.clone(), sm.params().grid.clone(), sm.params().place.clone())
+            (
+                sm.params().hd.clone(),
+                sm.params().grid.clone(),
+                sm.params().place.clone(),
+            )
         });
         let hd = flat_f64("hd activity", &hd, &[hp.n_nu, hp.n_theta])?;
         if grids.len() != 3 {
-            return Err(HippoNavError::new_err("grid activities: expected one array per module (3)"));
+            return Err(HippoNavError::new_err(
+                "grid activities: expected one array per module (3)",
+            ));
         }
         let mut g = Vec::with_capacity(3);
         for (a, p) in grids.iter().zip(&gp) {
-            g.push(flat_f64("grid activity", a, &[p.n_nu, p.n_nu, p.n_theta, p.n_theta])?);
+            g.push(flat_f64(
+                "grid activity",
+                a,
+                &[p.n_nu, p.n_nu, p.n_theta, p.n_theta],
+            )?);
         }
         let place = flat_f64("place activity", &place, &[pp.n_theta, pp.n_theta])?;
         with_engine!(&mut self.engine, sm, T, {
@@ -259,14 +285,18 @@ impl PySpatialMemory {
             for (module, a) in sm.grids.iter_mut().zip(g) {
                 module.set_activity(&to_vec::<T>(a)).map_err(to_py_err)?;
             }
-            sm.place.set_activity(&to_vec::<T>(place)).map_err(to_py_err)?;
+            sm.place
+                .set_activity(&to_vec::<T>(place))
+                .map_err(to_py_err)?;
             sm.set_aux_state(&aux).map_err(to_py_err)
         })
     }
 }
 
 fn module_index_error(index: usize) -> PyErr {
-    HippoNavError::new_err(format!("grid module index {index} out of range: there are 3 (0 = coarsest)"))
+    HippoNavError::new_err(format!(
+        "grid module index {index} out of range: there are 3 (0 = coarsest)"
+    ))
 }
 
 /// Default engine parameters as JSON (the single source of defaults).
@@ -296,7 +326,13 @@ fn find_bumps(
     let v = flat_f64("pattern", &pattern, &[n, n])?;
     Ok(decode::find_bumps(&v, n, threshold_frac)
         .into_iter()
-        .map(|b| ((b.mean_rad[0], b.mean_rad[1]), (b.std_rad[0], b.std_rad[1]), b.mass))
+        .map(|b| {
+            (
+                (b.mean_rad[0], b.mean_rad[1]),
+                (b.std_rad[0], b.std_rad[1]),
+                b.mass,
+            )
+        })
         .collect())
 }
 
@@ -314,7 +350,11 @@ fn fuse_modules(
         .iter()
         .map(|m| {
             m.iter()
-                .map(|&(mu, s)| Bump2 { mean_rad: [mu.0, mu.1], std_rad: [s.0, s.1], mass: 1.0 })
+                .map(|&(mu, s)| Bump2 {
+                    mean_rad: [mu.0, mu.1],
+                    std_rad: [s.0, s.1],
+                    mass: 1.0,
+                })
                 .collect()
         })
         .collect();
@@ -341,13 +381,21 @@ fn grid_recurrent_input_check<'py>(
 ) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>)> {
     let params: SpatialMemoryParams = serde_json::from_str(config_json)
         .map_err(|e| HippoNavError::new_err(format!("invalid engine config: {e}")))?;
-    let p = params.grid.get(module).ok_or_else(|| module_index_error(module))?.clone();
+    let p = params
+        .grid
+        .get(module)
+        .ok_or_else(|| module_index_error(module))?
+        .clone();
     if p.n_units() > 20_000 {
         return Err(HippoNavError::new_err(
             "the dense reference is for small modules only (at most 20 000 units)",
         ));
     }
-    let m = flat_f64("activity", &activity, &[p.n_nu, p.n_nu, p.n_theta, p.n_theta])?;
+    let m = flat_f64(
+        "activity",
+        &activity,
+        &[p.n_nu, p.n_nu, p.n_theta, p.n_theta],
+    )?;
     let g = hippo_attractor::GridModule::<f64>::new(p.clone()).map_err(to_py_err)?;
     // The engine integrates the lattice-symmetric part; compare on the projected (periodic) activity.
     let cell = g.fold(&m);
