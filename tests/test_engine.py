@@ -5,10 +5,9 @@ from __future__ import annotations
 import json
 import math
 
+import hippo_nav
 import numpy as np
 import pytest
-
-import hippo_nav
 from hippo_nav import _core
 from hippo_nav.engine import EngineConfig, SpatialMemory, ViewPatterns, find_bumps, fuse_modules
 
@@ -23,7 +22,9 @@ def test_python_config_defaults_are_the_rust_defaults():
     from_python = json.loads(EngineConfig().to_json())
     assert from_python == from_rust
     # Partial configs fill the rest from the Rust defaults.
-    c = EngineConfig.model_validate({"grid": [{"n_theta": 32}, {"n_theta": 32}, {"n_theta": 32}], "place": {"n_theta": 32}})
+    c = EngineConfig.model_validate(
+        {"grid": [{"n_theta": 32}, {"n_theta": 32}, {"n_theta": 32}], "place": {"n_theta": 32}}
+    )
     assert c.grid[2].k == 4 and c.grid[0].n_theta == 32 and c.hd.n_theta == from_rust["hd"]["n_theta"]
 
 
@@ -80,7 +81,9 @@ def test_fusion_reproduces_the_papers_table():
 def test_find_bumps_accepts_any_layout():
     n = 32
     t = 2 * np.pi * np.arange(n) / n
-    pattern = np.maximum(np.cos(2 * t)[None, :] * np.cos(2 * t)[:, None], 0.0)  # 4 positive lobes... and 4 more
+    pattern = np.maximum(
+        np.cos(2 * t)[None, :] * np.cos(2 * t)[:, None], 0.0
+    )  # 4 positive lobes... and 4 more
     base = find_bumps(np.ascontiguousarray(pattern))
     transposed = find_bumps(np.ascontiguousarray(pattern.T).T)  # Fortran order, same values
     assert len(base) == len(transposed) == 8
@@ -117,7 +120,9 @@ def test_view_injection_accepts_non_contiguous_arrays_and_pulls_back():
     # Same values through a strided view: layout must not matter.
     hd = np.zeros(2 * stored.hd_profile.size)
     hd[::2] = stored.hd_profile
-    view = ViewPatterns(hd_profile=hd[::2], grid_layer2=[np.asfortranarray(g) for g in stored.grid_layer2], strength=3.0)
+    view = ViewPatterns(
+        hd_profile=hd[::2], grid_layer2=[np.asfortranarray(g) for g in stored.grid_layer2], strength=3.0
+    )
     for _ in range(10):
         r = sm.step(0.0, 0.0, 0.1, view)
     back = abs(math.remainder(r.heading_rad - start, 2 * math.pi))

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from hippo_nav.engine import SpatialMemory
 from hippo_nav.theory import predicted_lesion_order
 

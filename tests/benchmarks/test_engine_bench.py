@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from hippo_nav.engine import EngineConfig, SpatialMemory
 
 
@@ -50,7 +49,7 @@ def test_paper_size_dense_numpy_layer(benchmark):
     VY = np.broadcast_to(vy[:, :, None, None], (m, m, n, n)).ravel()
     units = TX.size
     weights = np.empty((units, units), dtype=np.float32)
-    wrap = lambda d: (d + np.pi) % (2 * np.pi) - np.pi  # noqa: E731
+    wrap = lambda d: (d + np.pi) % (2 * np.pi) - np.pi
     for start in range(0, units, 2000):
         sl = slice(start, start + 2000)
         dx = wrap(TX[sl, None] - TX[None, :] - VX[None, :])

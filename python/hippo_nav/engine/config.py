@@ -97,5 +97,7 @@ class EngineConfig(_Section):
     def to_json(self) -> str:
         return self.model_dump_json(by_alias=True)
 
-    def with_lesions(self, ventral: bool = False, intermediate: bool = False, dorsal: bool = False) -> EngineConfig:
+    def with_lesions(
+        self, ventral: bool = False, intermediate: bool = False, dorsal: bool = False
+    ) -> EngineConfig:
         return self.model_copy(update={"lesioned": [ventral, intermediate, dorsal]})
