@@ -28,6 +28,42 @@ pub fn tau_effective(dt_s: f64, tau_s: f64) -> f64 {
     dt_s / (1.0 - decay(dt_s, tau_s))
 }
 
+/// The integrator's memory between steps: the last solved mean activity, a warm start for the next solve.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct ImplicitStepper {
+    mean_guess: f64,
+}
+
+impl ImplicitStepper {
+    /// One step of `dt_s` (see the module docs); fails if the state diverged.
+    pub fn advance<T: Real>(
+        &mut self,
+        m: &mut [T],
+        drive: &[T],
+        j0: f64,
+        dt_s: f64,
+        tau_s: f64,
+    ) -> crate::error::Result<()> {
+        let mean = step_with_implicit_inhibition(m, drive, j0, decay(dt_s, tau_s), self.mean_guess);
+        if !mean.is_finite() {
+            return Err(crate::error::AttractorError::Diverged);
+        }
+        self.mean_guess = mean;
+        Ok(())
+    }
+}
+
+/// Sum of consecutive rows of `width` values (e.g. activity summed over the velocity axes).
+pub fn sum_rows<T: Real>(m: &[T], width: usize) -> Vec<T> {
+    let mut out = vec![T::zero(); width];
+    for row in m.chunks(width) {
+        for (a, &b) in out.iter_mut().zip(row) {
+            *a = *a + b;
+        }
+    }
+    out
+}
+
 /// Sum and count of the positive entries of `drive + offset` (chunked, parallel, f64 across chunks).
 fn positive_part<T: Real>(drive: &[T], offset: T) -> (f64, usize) {
     drive

@@ -21,7 +21,7 @@
 //! [`GridModule::activity`] and [`GridModule::layer2`] tile it back to the full N×N torus.
 use crate::check;
 use crate::circular::wrap;
-use crate::dynamics::{self, step_with_implicit_inhibition};
+use crate::dynamics::{sum_rows, ImplicitStepper};
 use crate::error::{AttractorError, Result};
 use crate::fft2::RealFft2;
 use crate::real::Real;
@@ -137,8 +137,7 @@ pub struct GridModule<T: Real> {
     nu_mix: Vec<T>,
     m: Vec<T>,
     drive: Vec<T>,
-    /// Last solved mean activity (warm start of the implicit solve).
-    mean_guess: f64,
+    stepper: ImplicitStepper,
     conv: Vec<T>,
     /// Integral term of the velocity-pinning loop (neural units).
     pin_bias: [f64; 2],
@@ -181,7 +180,7 @@ impl<T: Real> GridModule<T> {
             kernel_spectra,
             nu_mix,
             m: vec![T::zero(); units],
-            mean_guess: 0.0,
+            stepper: ImplicitStepper::default(),
             drive: vec![T::zero(); units],
             conv: vec![T::zero(); units],
             pin_bias: [0.0; 2],
@@ -401,32 +400,15 @@ impl<T: Real> GridModule<T> {
                 None => d.iter_mut().for_each(|x| *x = *x + input),
             }
         });
-        let mean = step_with_implicit_inhibition(
-            &mut self.m,
-            &drive,
-            p.j0,
-            dynamics::decay(dt_s, tau_s),
-            self.mean_guess,
-        );
-        self.mean_guess = mean;
+        let stepped = self.stepper.advance(&mut self.m, &drive, p.j0, dt_s, tau_s);
         self.drive = drive;
         self.conv = conv;
-        if !mean.is_finite() {
-            return Err(AttractorError::Diverged);
-        }
-        Ok(())
+        stepped
     }
 
     /// Layer-II ("pure grid cell") pattern: the activity summed over both velocity axes (N², `[iy][ix]`).
     pub fn layer2(&self) -> Vec<T> {
-        let c2 = self.params.cell() * self.params.cell();
-        let mut p = vec![T::zero(); c2];
-        for slice in self.m.chunks(c2) {
-            for (a, &b) in p.iter_mut().zip(slice) {
-                *a = *a + b;
-            }
-        }
-        self.tile(&p)
+        self.tile(&sum_rows(&self.m, self.params.cell() * self.params.cell()))
     }
 
     /// Activity-weighted mean position on the velocity axes (what sets the bump speed).

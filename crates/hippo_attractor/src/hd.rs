@@ -6,7 +6,7 @@
 //! row, `C(ν') = Σ_θ' m cos(θ' + ν')` and `S(ν') = Σ_θ' m sin(θ' + ν')`, mixed over ν: exact in O(Nθ·Nν + Nν²).
 //! Layout: `m[j·Nθ + i]` (velocity-major rows of θ).
 use crate::check;
-use crate::dynamics::{self, step_with_implicit_inhibition};
+use crate::dynamics::{sum_rows, ImplicitStepper};
 use crate::error::{AttractorError, Result};
 use crate::real::Real;
 use serde::{Deserialize, Serialize};
@@ -100,8 +100,7 @@ pub struct HdRing<T: Real> {
     nu_mix: Vec<f64>,
     m: Vec<T>,
     drive: Vec<T>,
-    /// Last solved mean activity (warm start of the implicit solve).
-    mean_guess: f64,
+    stepper: ImplicitStepper,
     /// Integral term of the velocity-pinning loop (neural units).
     pin_bias: f64,
 }
@@ -133,7 +132,7 @@ impl<T: Real> HdRing<T> {
             sin_shift,
             nu_mix,
             m: vec![T::zero(); nt * nv],
-            mean_guess: 0.0,
+            stepper: ImplicitStepper::default(),
             drive: vec![T::zero(); nt * nv],
             pin_bias: 0.0,
             params,
@@ -283,31 +282,14 @@ impl<T: Real> HdRing<T> {
                 }
             }
         }
-        let mean = step_with_implicit_inhibition(
-            &mut self.m,
-            &drive,
-            p.j0,
-            dynamics::decay(dt_s, tau_s),
-            self.mean_guess,
-        );
-        self.mean_guess = mean;
+        let stepped = self.stepper.advance(&mut self.m, &drive, p.j0, dt_s, tau_s);
         self.drive = drive;
-        if !mean.is_finite() {
-            return Err(AttractorError::Diverged);
-        }
-        Ok(())
+        stepped
     }
 
     /// θ-profile: activity summed over the velocity axis (what a view cell stores).
     pub fn theta_profile(&self) -> Vec<T> {
-        let nt = self.params.n_theta;
-        let mut p = vec![T::zero(); nt];
-        for row in self.m.chunks(nt) {
-            for (a, &b) in p.iter_mut().zip(row) {
-                *a = *a + b;
-            }
-        }
-        p
+        sum_rows(&self.m, self.params.n_theta)
     }
 
     /// ψ = arg Σ m e^{iθ}; φ = arg(Σ m e^{iλν})/λ; ω = tan(φ)/τ_eff.

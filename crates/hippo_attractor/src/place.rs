@@ -5,8 +5,8 @@
 //! `I_grid(θ) = A / sqrt(2π σx σy) · exp(−wrap(θx − μx)²/(2σx²) − wrap(θy − μy)²/(2σy²))`.
 use crate::check;
 use crate::circular::wrap;
-use crate::dynamics::{self, step_with_implicit_inhibition};
-use crate::error::{AttractorError, Result};
+use crate::dynamics::ImplicitStepper;
+use crate::error::Result;
 use crate::fft2::{Fft2Scratch, RealFft2};
 use crate::fusion::FusedEstimate;
 use crate::real::Real;
@@ -57,8 +57,7 @@ pub struct PlaceNetwork<T: Real> {
     scratch: Fft2Scratch<T>,
     m: Vec<T>,
     drive: Vec<T>,
-    /// Last solved mean activity (warm start of the implicit solve).
-    mean_guess: f64,
+    stepper: ImplicitStepper,
     input: Vec<T>,
 }
 
@@ -82,7 +81,7 @@ impl<T: Real> PlaceNetwork<T> {
             kernel_spectrum,
             scratch,
             m: vec![T::zero(); n * n],
-            mean_guess: 0.0,
+            stepper: ImplicitStepper::default(),
             drive: vec![T::zero(); n * n],
             input: vec![T::zero(); n * n],
             params,
@@ -157,19 +156,11 @@ impl<T: Real> PlaceNetwork<T> {
             *d = *d + i;
         }
         let inhibition = self.params.j0 + self.params.j1 * self.kernel_mean;
-        let mean = step_with_implicit_inhibition(
-            &mut self.m,
-            &drive,
-            inhibition,
-            dynamics::decay(dt_s, tau_s),
-            self.mean_guess,
-        );
-        self.mean_guess = mean;
+        let stepped = self
+            .stepper
+            .advance(&mut self.m, &drive, inhibition, dt_s, tau_s);
         self.drive = drive;
-        if !mean.is_finite() {
-            return Err(AttractorError::Diverged);
-        }
-        Ok(())
+        stepped
     }
 }
 
