@@ -1,0 +1,163 @@
+//! Versioned map files: everything needed to resume a run or relocalise in a known map.
+//!
+//! Layout (UTF-8):
+//! ```text
+//! HIPPO_NAV_MAP 1\n
+//! length <payload bytes> fnv1a64 <16 hex digits>\n
+//! <JSON payload: params, vertices, links, current vertex, odometry since it, frame count, lost flag>
+//! ```
+//! Loading reads the whole file, then checks, in order, the magic (foreign file), the version, the
+//! payload length (truncated file), the FNV-1a 64-bit checksum (corrupted bytes), the JSON, and the map's
+//! own consistency (link ends, finite values, params). Only then is a new map built, so a bad file can
+//! never leave a half-loaded map. The checksum guards against accidents, not tampering. Files are
+//! written to a temporary sibling and renamed, so an interrupted save keeps the previous file intact.
+use crate::error::{MapError, Result};
+use crate::experience::ExperienceMap;
+use crate::graph::check_pose;
+use std::path::Path;
+
+pub const MAGIC: &str = "HIPPO_NAV_MAP";
+pub const FORMAT_VERSION: u32 = 1;
+
+/// FNV-1a, 64-bit: a simple, well-specified checksum (http://www.isthe.com/chongo/tech/comp/fnv/).
+fn fnv1a64(bytes: &[u8]) -> u64 {
+    let mut hash: u64 = 0xcbf2_9ce4_8422_2325;
+    for &b in bytes {
+        hash ^= u64::from(b);
+        hash = hash.wrapping_mul(0x0000_0100_0000_01b3);
+    }
+    hash
+}
+
+/// Serialise a map to the file format.
+pub fn to_bytes(map: &ExperienceMap) -> Result<Vec<u8>> {
+    let payload = serde_json::to_vec(map)
+        .map_err(|e| MapError::Format(format!("cannot encode the map: {e}")))?;
+    let mut out = format!(
+        "{MAGIC} {FORMAT_VERSION}\nlength {} fnv1a64 {:016x}\n",
+        payload.len(),
+        fnv1a64(&payload)
+    )
+    .into_bytes();
+    out.extend_from_slice(&payload);
+    Ok(out)
+}
+
+fn split_line(bytes: &[u8]) -> Option<(&str, &[u8])> {
+    let end = bytes.iter().position(|&b| b == b'\n')?;
+    let line = std::str::from_utf8(&bytes[..end]).ok()?;
+    Some((line, &bytes[end + 1..]))
+}
+
+/// Parse and fully validate a map file's bytes.
+pub fn from_bytes(bytes: &[u8]) -> Result<ExperienceMap> {
+    let foreign = || {
+        MapError::Format(format!(
+            "it does not start with \"{MAGIC} <version>\"; pass a file written by ExperienceMap.save"
+        ))
+    };
+    let (first, rest) = split_line(bytes).ok_or_else(foreign)?;
+    let mut words = first.split(' ');
+    if words.next() != Some(MAGIC) {
+        return Err(foreign());
+    }
+    let version: u32 = words
+        .next()
+        .and_then(|w| w.parse().ok())
+        .ok_or_else(foreign)?;
+    if version != FORMAT_VERSION {
+        return Err(MapError::Format(format!(
+            "format version {version}, this build reads version {FORMAT_VERSION}; use the hippo_nav that wrote it"
+        )));
+    }
+    let (header, payload) = split_line(rest).ok_or_else(|| {
+        MapError::Format("truncated: the header ends before its second line".into())
+    })?;
+    let fields: Vec<&str> = header.split(' ').collect();
+    let (length, checksum) = match fields.as_slice() {
+        ["length", n, "fnv1a64", h] => (n.parse::<usize>().ok(), u64::from_str_radix(h, 16).ok()),
+        _ => (None, None),
+    };
+    let (Some(length), Some(checksum)) = (length, checksum) else {
+        return Err(MapError::Format(format!(
+            "malformed header line {header:?}"
+        )));
+    };
+    if payload.len() != length {
+        return Err(MapError::Format(format!(
+            "{}: the header promises {length} payload bytes, the file holds {}",
+            if payload.len() < length {
+                "truncated"
+            } else {
+                "trailing bytes"
+            },
+            payload.len()
+        )));
+    }
+    if fnv1a64(payload) != checksum {
+        return Err(MapError::Format(
+            "checksum mismatch: the file is corrupted; restore it from a backup".into(),
+        ));
+    }
+    let mut map: ExperienceMap = serde_json::from_slice(payload)
+        .map_err(|e| MapError::Format(format!("payload is not a valid map: {e}")))?;
+    validate(&map)?;
+    map.rebuild_index();
+    Ok(map)
+}
+
+fn validate(map: &ExperienceMap) -> Result<()> {
+    map.params.validate()?;
+    let len = map.vertices.len();
+    for v in &map.vertices {
+        check_pose("stored vertex pose", &v.world_from_vertex)?;
+    }
+    for l in &map.links {
+        for vertex in [l.from, l.to] {
+            if vertex >= len {
+                return Err(MapError::UnknownVertex { vertex, len });
+            }
+        }
+        check_pose("stored link transform", &l.from_from_to)?;
+    }
+    if let Some(vertex) = map.current {
+        if vertex >= len {
+            return Err(MapError::UnknownVertex { vertex, len });
+        }
+    }
+    check_pose(
+        "stored odometry since the current vertex",
+        &map.current_from_agent,
+    )?;
+    Ok(())
+}
+
+/// Save atomically (temporary file, then rename).
+pub fn save(map: &ExperienceMap, path: &Path) -> Result<()> {
+    let bytes = to_bytes(map)?;
+    let io = |source| MapError::Io {
+        path: path.display().to_string(),
+        source,
+    };
+    let mut tmp = path.as_os_str().to_owned();
+    tmp.push(".tmp");
+    std::fs::write(&tmp, &bytes).map_err(io)?;
+    std::fs::rename(&tmp, path).map_err(io)
+}
+
+pub fn load(path: &Path) -> Result<ExperienceMap> {
+    let bytes = std::fs::read(path).map_err(|source| MapError::Io {
+        path: path.display().to_string(),
+        source,
+    })?;
+    from_bytes(&bytes)
+}
+
+impl ExperienceMap {
+    pub fn save(&self, path: &Path) -> Result<()> {
+        save(self, path)
+    }
+    pub fn load(path: &Path) -> Result<ExperienceMap> {
+        load(path)
+    }
+}
