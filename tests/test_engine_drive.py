@@ -15,8 +15,10 @@ def test_planar_odometry_recovers_a_loop():
     t = 0.1 * np.arange(len(poses))
     odo = planar_odometry(poses, t)
     positions, yaw = planar_track(poses)
-    # Integrating the odometry (exact unicycle per step is not guaranteed; chords are) rebuilds the path.
+    # Speeds are chord lengths per second; turn rates integrate to the total heading change.
     assert np.all(odo.speed_m_s > 0)
+    path_m = np.sum(np.linalg.norm(np.diff(positions, axis=0), axis=1))
+    assert np.sum(odo.speed_m_s * odo.dt_s) == pytest.approx(path_m, rel=1e-12)
     assert abs(np.sum(odo.yaw_rate_rad_s * odo.dt_s) - np.unwrap(yaw)[-1]) < 1e-9
     with pytest.raises(hippo_nav.HippoNavError, match="increasing"):
         planar_odometry(poses, t[::-1])
