@@ -38,7 +38,9 @@ pub struct HdParams {
 
 impl Default for HdParams {
     fn default() -> Self {
-        let nu_max = 0.05;
+        // The exact-leak integrator maps ω to u = arctan(τ_eff ω) with τ_eff ≈ 2.7τ at the default step, so
+        // the spec's L_r ≈ 0.05 (for τ) becomes 0.1: turn rates up to ~3.6 rad/s (tight corners at speed).
+        let nu_max = 0.1;
         Self {
             n_theta: 128,
             n_nu: 15,

@@ -63,21 +63,28 @@ class DriveResult:
     place_position_m: np.ndarray
     module_positions_m: np.ndarray  # (N, 3, 2)
     bump_counts: np.ndarray  # (N, 3)
+    interrupted: bool = False
 
 
 def drive(sm: SpatialMemory, odometry: PlanarOdometry, progress: bool = False) -> DriveResult:
-    """Step `sm` once per odometry step, collecting the decoded state."""
+    """Step `sm` once per odometry step, collecting the decoded state. Ctrl-C stops early and returns the
+    frames integrated so far (`interrupted` is then True)."""
     readouts = [sm.readout()]
     steps = zip(odometry.yaw_rate_rad_s, odometry.speed_m_s, odometry.dt_s)
     if progress:
         from tqdm import tqdm
 
         steps = tqdm(steps, total=len(odometry.dt_s), desc="path integration", unit="frame")
-    for w, v, dt in steps:
-        readouts.append(sm.step(w, v, dt))
+    interrupted = False
+    try:
+        for w, v, dt in steps:
+            readouts.append(sm.step(w, v, dt))
+    except KeyboardInterrupt:
+        interrupted = True
     return DriveResult(
         heading_rad=np.array([r.heading_rad for r in readouts]),
         place_position_m=np.array([r.place_position_m for r in readouts]),
         module_positions_m=np.array([[m.position_m for m in r.modules] for r in readouts]),
         bump_counts=np.array([[len(m.bumps) for m in r.modules] for r in readouts]),
+        interrupted=interrupted,
     )
