@@ -3,7 +3,6 @@ import hippo_nav
 
 def test_version_matches_cargo_workspace():
     import tomllib
-
     from conftest import PROJECT_ROOT
 
     cargo = tomllib.loads((PROJECT_ROOT / "Cargo.toml").read_text())

@@ -1,1 +1,21 @@
 //! Local view cells (SPEC §7): template comparison with a horizontal shift search.
+//!
+//! A template is a small, patch-normalised, row-major `height × width` image (made by the Python side with
+//! OpenCV). [`ViewCells::observe`] compares it with every stored template using the normalised mean
+//! absolute difference of [`compare`](crate::compare) (0 identical … ≈0.71 unrelated … 1), minimised over
+//! horizontal shifts `±max_shift_px`. Below `novelty_threshold` the view is familiar and the match gives the
+//! cell id, the difference and the relative heading `shift · field_of_view / width` (counter-clockwise
+//! positive, i.e. positive when the camera has turned left since the cell was stored); otherwise a new cell
+//! stores the template. Templates with almost no texture are reported as uninformative and never stored.
+//!
+//! The search is exact but pruned: a coarse lower bound ranks candidates, exact comparisons run in parallel
+//! batches with early exit, and the search stops once no remaining bound can beat the best difference.
+//! [`ViewCells::best_match_brute_force`] is the plain reference it is tested against.
+mod cells;
+pub mod compare;
+mod error;
+mod params;
+
+pub use cells::{ViewCells, ViewMatch, ViewObservation, ViewStatus};
+pub use error::ViewError;
+pub use params::ViewCellParams;

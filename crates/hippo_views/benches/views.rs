@@ -1,0 +1,56 @@
+//! Matching time against the number of stored templates (1 000 and 10 000), pruned search vs the plain
+//! brute-force reference measured in the same run. Templates are random smooth textures, and the query is
+//! a slightly shifted, noisy copy of one of them (a revisit), as in a loop.
+use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use hippo_views::{ViewCellParams, ViewCells};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use std::hint::black_box;
+
+fn random_template(rng: &mut ChaCha8Rng, n: usize) -> Vec<f32> {
+    (0..n).map(|_| rng.random_range(-1.5f32..1.5)).collect()
+}
+
+fn bench_matching(c: &mut Criterion) {
+    let params = ViewCellParams::default();
+    let n = params.template_len();
+    let mut group = c.benchmark_group("view_match");
+    group.sample_size(10);
+    for count in [1_000usize, 10_000] {
+        let mut rng = ChaCha8Rng::seed_from_u64(7);
+        let mut cells = match ViewCells::new(params.clone()) {
+            Ok(c) => c,
+            Err(e) => panic!("default parameters rejected: {e}"),
+        };
+        for _ in 0..count {
+            let t = random_template(&mut rng, n);
+            if let Err(e) = cells.add(&t) {
+                panic!("{e}");
+            }
+        }
+        let target = count / 3;
+        let w = params.width_px;
+        let stored = cells
+            .template(target)
+            .map(|t| t.to_vec())
+            .unwrap_or_default();
+        // Query = stored template shifted right by 3 columns plus noise.
+        let query: Vec<f32> = (0..n)
+            .map(|i| {
+                let (r, x) = (i / w, i % w);
+                let v = if x >= 3 { stored[r * w + x - 3] } else { 0.0 };
+                v + rng.random_range(-0.2f32..0.2)
+            })
+            .collect();
+        group.bench_with_input(BenchmarkId::new("pruned", count), &query, |b, q| {
+            b.iter(|| black_box(cells.best_match(q)))
+        });
+        group.bench_with_input(BenchmarkId::new("brute_force", count), &query, |b, q| {
+            b.iter(|| black_box(cells.best_match_brute_force(q)))
+        });
+    }
+    group.finish();
+}
+
+criterion_group!(benches, bench_matching);
+criterion_main!(benches);

@@ -1,0 +1,252 @@
+//! Normalised template difference with a horizontal shift search.
+//!
+//! Templates are row-major `height × width` arrays of patch-normalised intensities. For a shift `s`
+//! (columns), the query `a` is compared with the stored template `b` where they overlap, pairing
+//! `a[r, x]` with `b[r, x − s]`:
+//!
+//! ```text
+//! d(s) = Σ_r Σ_x |a[r,x] − b[r,x−s]|  /  Σ_r Σ_x (|a[r,x]| + |b[r,x−s]|)        (x over the overlap)
+//! ```
+//!
+//! By the triangle inequality `d ∈ [0, 1]`: 0 for identical views, 1 for opposite ones, and ≈ 1/√2 for two
+//! unrelated unit-variance textures, whatever the image size, exposure or dataset, so one threshold serves
+//! everywhere. Dividing by the overlap's own magnitude also keeps large shifts (less overlap) comparable.
+//! The difference of a template is `min_s d(s)` over `s ∈ [−S, S]`; the arg-min shift says how far the
+//! scene slid sideways: a positive shift (content moved right) means the camera turned counter-clockwise
+//! (left) since the stored view, by `s · field_of_view / width` radians.
+//!
+//! Coarse lower bound: summing `b − a` over blocks of `k` rows before taking absolute values can only
+//! shrink the numerator (|Σ e| ≤ Σ |e|) while the denominator is exact (from per-column |·| sums), so
+//! `d_coarse(s) ≤ d(s)`: templates whose coarse bound already exceeds the best difference found can be
+//! skipped without changing the answer.
+
+/// Sum of absolute differences of two equal-length slices. Eight independent accumulators let the
+/// compiler vectorise (a single f32 accumulator forces strict sequential order).
+#[inline]
+pub(crate) fn sad(a: &[f32], b: &[f32]) -> f32 {
+    let n = a.len().min(b.len());
+    let (a, b) = (&a[..n], &b[..n]);
+    let mut lanes = [0.0f32; 8];
+    let mut ca = a.chunks_exact(8);
+    let mut cb = b.chunks_exact(8);
+    for (pa, pb) in (&mut ca).zip(&mut cb) {
+        for i in 0..8 {
+            lanes[i] += (pa[i] - pb[i]).abs();
+        }
+    }
+    let mut tail = 0.0f32;
+    for (p, q) in ca.remainder().iter().zip(cb.remainder()) {
+        tail += (p - q).abs();
+    }
+    lanes.iter().sum::<f32>() + tail
+}
+
+/// Columns of the query that overlap the stored template at shift `s`: `x ∈ [x0, x1)`, stored column `x − s`.
+#[inline]
+pub(crate) fn overlap(shift: isize, width: usize) -> (usize, usize) {
+    let w = width as isize;
+    (shift.max(0) as usize, (w + shift.min(0)) as usize)
+}
+
+/// Shifts in search order 0, −1, +1, −2, +2, …: with strict improvement, ties go to the smallest |s|.
+pub(crate) fn shift_order(max_shift: usize) -> impl Iterator<Item = isize> {
+    std::iter::once(0).chain((1..=max_shift as isize).flat_map(|s| [-s, s]))
+}
+
+/// Derived per-template data used by the search.
+#[derive(Debug, Clone)]
+pub(crate) struct Summary {
+    /// Σ_r |v[r, x]| per column (width values).
+    pub col_abs: Vec<f32>,
+    /// Row-block sums (ceil(height / k) × width).
+    pub coarse: Vec<f32>,
+    /// Mean |v| over the template: its texture.
+    pub texture: f32,
+}
+
+pub(crate) fn summarise(t: &[f32], width: usize, height: usize, coarse_rows: usize) -> Summary {
+    let mut col_abs = vec![0.0f32; width];
+    let n_blocks = height.div_ceil(coarse_rows);
+    let mut coarse = vec![0.0f32; n_blocks * width];
+    for r in 0..height {
+        let row = &t[r * width..(r + 1) * width];
+        let block = &mut coarse[(r / coarse_rows) * width..(r / coarse_rows + 1) * width];
+        for x in 0..width {
+            col_abs[x] += row[x].abs();
+            block[x] += row[x];
+        }
+    }
+    let texture = col_abs.iter().sum::<f32>() / (width * height) as f32;
+    Summary {
+        col_abs,
+        coarse,
+        texture,
+    }
+}
+
+/// Σ over the overlap of the per-column magnitudes of both templates (the denominator of `d(s)`).
+#[inline]
+pub(crate) fn denominator(a_col_abs: &[f32], b_col_abs: &[f32], shift: isize) -> f32 {
+    let (x0, x1) = overlap(shift, a_col_abs.len());
+    let bs = (x0 as isize - shift) as usize;
+    a_col_abs[x0..x1].iter().sum::<f32>() + b_col_abs[bs..bs + (x1 - x0)].iter().sum::<f32>()
+}
+
+/// Numerator of `d(s)` over `rows` rows; stops early (returning a value > `abort_above`) once the
+/// partial sum passes `abort_above`, because the caller only needs to know it cannot win.
+#[inline]
+pub(crate) fn numerator(
+    a: &[f32],
+    b: &[f32],
+    width: usize,
+    rows: usize,
+    shift: isize,
+    abort_above: f32,
+) -> f32 {
+    let (x0, x1) = overlap(shift, width);
+    let bs = (x0 as isize - shift) as usize;
+    let mut acc = 0.0f32;
+    for r in 0..rows {
+        let o = r * width;
+        acc += sad(&a[o + x0..o + x1], &b[o + bs..o + bs + (x1 - x0)]);
+        if acc > abort_above {
+            return acc;
+        }
+    }
+    acc
+}
+
+/// Normalised difference of two zero-magnitude-safe templates: 1 (no evidence) when both are blank.
+#[inline]
+pub(crate) fn ratio(num: f32, den: f32) -> f32 {
+    if den > f32::MIN_POSITIVE {
+        num / den
+    } else {
+        1.0
+    }
+}
+
+/// Best (difference, shift) between query `a` and stored `b` over all shifts, or `None` when it is above
+/// `beat`. Exact: an early exit only drops a shift whose partial sum already proves `d(s)` exceeds the
+/// best so far (with a relative slack of 1e-6 against rounding), so the surviving shifts are computed
+/// exactly as a plain search computes them.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn best_shift(
+    a: &[f32],
+    a_sum: &Summary,
+    b: &[f32],
+    b_sum: &Summary,
+    width: usize,
+    height: usize,
+    max_shift: usize,
+    beat: f32,
+) -> Option<(f32, isize)> {
+    let mut best: Option<(f32, isize)> = None;
+    for s in shift_order(max_shift) {
+        let limit = best.map_or(beat, |(d, _)| d.min(beat));
+        let den = denominator(&a_sum.col_abs, &b_sum.col_abs, s);
+        let abort_above = if limit.is_finite() {
+            limit * den * (1.0 + 1e-6)
+        } else {
+            f32::INFINITY
+        };
+        let num = numerator(a, b, width, height, s, abort_above);
+        let d = ratio(num, den);
+        let improves = best.is_none_or(|(bd, _)| d < bd);
+        if improves && d <= beat {
+            best = Some((d, s));
+        }
+    }
+    best
+}
+
+/// Coarse lower bound of `min_s d(s)` (see the module docs).
+pub(crate) fn coarse_bound(
+    a_sum: &Summary,
+    b_sum: &Summary,
+    width: usize,
+    max_shift: usize,
+) -> f32 {
+    let rows = a_sum.coarse.len() / width;
+    shift_order(max_shift)
+        .map(|s| {
+            let den = denominator(&a_sum.col_abs, &b_sum.col_abs, s);
+            ratio(
+                numerator(&a_sum.coarse, &b_sum.coarse, width, rows, s, f32::INFINITY),
+                den,
+            )
+        })
+        .fold(f32::INFINITY, f32::min)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Deterministic pseudo-random values in [−1, 1) (a small LCG keeps the unit tests dependency-free).
+    fn noise(seed: u64, n: usize) -> Vec<f32> {
+        let mut x = seed
+            .wrapping_mul(6364136223846793005)
+            .wrapping_add(1442695040888963407);
+        (0..n)
+            .map(|_| {
+                x = x
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                ((x >> 40) as f32 / (1u64 << 24) as f32) * 2.0 - 1.0
+            })
+            .collect()
+    }
+
+    fn plain_difference(a: &[f32], b: &[f32], w: usize, h: usize, s: isize) -> f32 {
+        let (mut num, mut den) = (0.0f64, 0.0f64);
+        for r in 0..h {
+            for x in 0..w as isize {
+                let xb = x - s;
+                if xb >= 0 && xb < w as isize {
+                    let (p, q) = (a[r * w + x as usize] as f64, b[r * w + xb as usize] as f64);
+                    num += (p - q).abs();
+                    den += p.abs() + q.abs();
+                }
+            }
+        }
+        (num / den) as f32
+    }
+
+    #[test]
+    fn fast_difference_matches_the_definition_and_the_bound_holds() {
+        let (w, h, k, smax) = (37, 13, 4, 6);
+        for seed in 0..30 {
+            let a = noise(seed, w * h);
+            let mut b = noise(seed + 1000, w * h);
+            if seed % 3 == 0 {
+                // Partly similar pairs make the bound non-trivial.
+                for (bv, av) in b.iter_mut().zip(&a) {
+                    *bv = 0.7 * av + 0.3 * *bv;
+                }
+            }
+            let (sa, sb) = (summarise(&a, w, h, k), summarise(&b, w, h, k));
+            let (best, _) = best_shift(&a, &sa, &b, &sb, w, h, smax, f32::INFINITY).unwrap();
+            let plain = shift_order(smax)
+                .map(|s| plain_difference(&a, &b, w, h, s))
+                .fold(f32::INFINITY, f32::min);
+            assert!(
+                (best - plain).abs() < 1e-5,
+                "seed {seed}: {best} vs {plain}"
+            );
+            let bound = coarse_bound(&sa, &sb, w, smax);
+            assert!(
+                bound <= best + 1e-6,
+                "seed {seed}: bound {bound} above exact {best}"
+            );
+            assert!(bound > 0.0);
+        }
+    }
+
+    #[test]
+    fn sad_handles_tails() {
+        let a: Vec<f32> = (0..19).map(|i| i as f32).collect();
+        let b = vec![0.0f32; 19];
+        assert_eq!(sad(&a, &b), (0..19).sum::<i32>() as f32);
+    }
+}

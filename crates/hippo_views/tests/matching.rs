@@ -1,0 +1,194 @@
+//! Behaviour of view-cell matching: differences, shifts, headings, exactness of the pruned search, errors.
+use approx::assert_abs_diff_eq;
+use hippo_views::{ViewCellParams, ViewCells, ViewError, ViewStatus};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+
+fn params() -> ViewCellParams {
+    ViewCellParams::default()
+}
+
+fn random_template(rng: &mut ChaCha8Rng, p: &ViewCellParams) -> Vec<f32> {
+    (0..p.template_len())
+        .map(|_| rng.random_range(-1.7f32..1.7))
+        .collect()
+}
+
+/// `t` moved `shift` columns to the right (content entering on the left is fresh noise).
+fn shifted(t: &[f32], p: &ViewCellParams, shift: isize, rng: &mut ChaCha8Rng) -> Vec<f32> {
+    let w = p.width_px as isize;
+    (0..t.len())
+        .map(|i| {
+            let (r, x) = ((i / p.width_px) as isize, (i % p.width_px) as isize);
+            let src = x - shift;
+            if (0..w).contains(&src) {
+                t[(r * w + src) as usize]
+            } else {
+                rng.random_range(-1.7f32..1.7)
+            }
+        })
+        .collect()
+}
+
+fn cells_with(n: usize, seed: u64) -> (ViewCells, ChaCha8Rng) {
+    let p = params();
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut cells = ViewCells::new(p.clone()).unwrap();
+    for _ in 0..n {
+        cells.add(&random_template(&mut rng, &p)).unwrap();
+    }
+    (cells, rng)
+}
+
+#[test]
+fn identical_view_has_zero_difference_and_no_shift() {
+    let (cells, _) = cells_with(20, 1);
+    let t = cells.template(11).unwrap().to_vec();
+    let m = cells.best_match(&t).unwrap().unwrap();
+    assert_eq!((m.cell_id, m.shift_px), (11, 0));
+    assert_abs_diff_eq!(m.difference, 0.0, epsilon = 1e-7);
+}
+
+#[test]
+fn unrelated_textures_differ_by_about_two_thirds() {
+    let p = params();
+    let (cells, mut rng) = cells_with(50, 2);
+    let q = random_template(&mut rng, &p);
+    let d = cells.differences(&q).unwrap();
+    let mean = d.iter().map(|x| x.0).sum::<f32>() / d.len() as f32;
+    // Uniform noise: E|a−b| / (E|a|+E|b|) = (2/3)/(1) over equal ranges; the shift minimum lowers it a bit.
+    assert!(mean > 0.6 && mean < 0.7, "mean unrelated difference {mean}");
+    assert!(d.iter().all(|x| (0.0..=1.0).contains(&x.0)));
+}
+
+#[test]
+fn shift_is_recovered_and_gives_counter_clockwise_heading() {
+    let p = params();
+    for shift in [-6isize, -2, 3, 7] {
+        let (mut cells, mut rng) = cells_with(30, 3);
+        let q = shifted(&cells.template(5).unwrap().to_vec(), &p, shift, &mut rng);
+        let obs = cells.observe(&q).unwrap();
+        assert_eq!(obs.status, ViewStatus::Familiar);
+        assert_eq!(obs.cell_id, Some(5));
+        assert_eq!(obs.shift_px as isize, shift);
+        assert_abs_diff_eq!(obs.difference, 0.0, epsilon = 1e-6);
+        // Content moved right ⇒ camera turned left (counter-clockwise): positive relative heading.
+        assert_abs_diff_eq!(
+            obs.relative_heading_rad,
+            shift as f64 * p.field_of_view_rad / p.width_px as f64
+        );
+        assert_eq!(cells.len(), 30, "a familiar view must not create a cell");
+    }
+}
+
+#[test]
+fn pruned_search_equals_brute_force() {
+    let p = params();
+    let (mut cells, mut rng) = cells_with(700, 4);
+    // Duplicates: ties must resolve to the lowest id in both searches.
+    let dup = cells.template(100).unwrap().to_vec();
+    cells.add(&dup).unwrap();
+    for k in 0..40 {
+        let q = match k % 4 {
+            0 => random_template(&mut rng, &p),
+            1 => dup.clone(),
+            _ => {
+                let base = cells.template((k * 37) % 700).unwrap().to_vec();
+                let mut q = shifted(&base, &p, (k as isize % 9) - 4, &mut rng);
+                for v in &mut q {
+                    *v += rng.random_range(-0.6f32..0.6);
+                }
+                q
+            }
+        };
+        let fast = cells.best_match(&q).unwrap().unwrap();
+        let slow = cells.best_match_brute_force(&q).unwrap().unwrap();
+        assert_eq!(fast, slow, "query {k}");
+    }
+    assert_eq!(cells.best_match(&dup).unwrap().unwrap().cell_id, 100);
+}
+
+#[test]
+fn observe_creates_cells_for_novel_views_only() {
+    let p = params();
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let mut cells = ViewCells::new(p.clone()).unwrap();
+    let a = random_template(&mut rng, &p);
+    let b = random_template(&mut rng, &p);
+    let first = cells.observe(&a).unwrap();
+    assert_eq!(
+        (first.status, first.cell_id, first.difference),
+        (ViewStatus::New, Some(0), 1.0)
+    );
+    let second = cells.observe(&b).unwrap();
+    assert_eq!((second.status, second.cell_id), (ViewStatus::New, Some(1)));
+    assert!(second.difference > p.novelty_threshold);
+    let again = cells.observe(&a).unwrap();
+    assert_eq!(
+        (again.status, again.cell_id),
+        (ViewStatus::Familiar, Some(0))
+    );
+}
+
+#[test]
+fn blank_views_are_uninformative_and_not_stored() {
+    let p = params();
+    let mut cells = ViewCells::new(p.clone()).unwrap();
+    let obs = cells.observe(&vec![0.0; p.template_len()]).unwrap();
+    assert_eq!((obs.status, obs.cell_id), (ViewStatus::Uninformative, None));
+    assert!(cells.is_empty());
+}
+
+#[test]
+fn bad_input_is_rejected_with_a_reason() {
+    let p = params();
+    let mut cells = ViewCells::new(p.clone()).unwrap();
+    let err = cells.observe(&[0.5; 10]).unwrap_err();
+    assert!(matches!(err, ViewError::BadTemplateSize { got: 10, .. }));
+    assert!(err.to_string().contains("expected 1536"));
+    let mut t = vec![0.5; p.template_len()];
+    t[p.width_px * 2 + 3] = f32::NAN;
+    let err = cells.observe(&t).unwrap_err();
+    assert_eq!(
+        err.to_string(),
+        "template value at row 2, column 3 is not finite (NaN); check the input image"
+    );
+    assert!(matches!(
+        cells.template(3),
+        Err(ViewError::UnknownCell { id: 3, count: 0 })
+    ));
+
+    let too_wide = ViewCellParams {
+        max_shift_px: 32,
+        ..p.clone()
+    };
+    assert!(matches!(
+        ViewCells::new(too_wide),
+        Err(ViewError::BadParameter {
+            name: "max_shift_px",
+            ..
+        })
+    ));
+    let bad_threshold = ViewCellParams {
+        novelty_threshold: 1.5,
+        ..p.clone()
+    };
+    assert!(ViewCells::new(bad_threshold)
+        .unwrap_err()
+        .to_string()
+        .contains("novelty_threshold"));
+    let even_patch = ViewCellParams {
+        patch_size_px: 4,
+        ..p
+    };
+    assert!(ViewCells::new(even_patch).is_err());
+}
+
+#[test]
+fn params_round_trip_through_json() {
+    let p = params();
+    let s = serde_json::to_string(&p).unwrap();
+    let back: ViewCellParams = serde_json::from_str(&s).unwrap();
+    assert_eq!(p, back);
+    assert!(serde_json::from_str::<ViewCellParams>(r#"{"width_px": 3}"#).is_err());
+}
