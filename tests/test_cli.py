@@ -1,71 +1,113 @@
-"""The command line: exit codes, outputs, clear errors."""
+"""The command line itself: exit codes, what it writes, clear errors, Ctrl-C."""
 
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
 
+import pytest
 from hippo_nav.cli import main
+from hippo_nav.io import read_kitti_poses
 
 
 def test_run_without_a_dataset_runs_the_demo_and_writes_results(tmp_path, capsys):
     out = tmp_path / "demo"
-    assert main(["run", "--out", str(out), "--no-progress"]) == 0
+    assert main(["run", "--out", str(out), "--no-progress", "--stop", "30"]) == 0
     metrics = json.loads((out / "metrics.json").read_text())
-    assert metrics["sequence"] == "synthetic demo loop"
-    assert metrics["bump_counts_final"] == [1, 4, 16]
-    assert metrics["place_code_final_error_pct_of_distance"] < 2.0
-    assert metrics["heading_max_error_deg"] < 3.0
-    for name in [
-        "neural_estimate.kitti.txt",
-        "neural_estimate.tum.txt",
-        "engine_config.json",
-        "neural_state.png",
-    ]:
+    assert metrics["sequence"] == "synthetic demo loop" and metrics["frames"] == 30
+    assert metrics["errors"]["vo"]["ate_3d_m"] >= 0.0
+    for name in ["config.json", "map.bin", "map.g2o", "frames.csv", "cognitive_map.png", "rate_maps.png"]:
         assert (out / name).stat().st_size > 0, name
-    assert len((out / "neural_estimate.kitti.txt").read_text().splitlines()) == metrics["frames"]
-    assert "results written" in capsys.readouterr().out
+    for name in ["vo", "online", "corrected"]:
+        assert read_kitti_poses(out / f"trajectory_{name}.kitti.txt").shape == (30, 4, 4)
+        assert (out / f"trajectory_{name}.tum.txt").stat().st_size > 0
+    printed = capsys.readouterr().out
+    assert "results written" in printed and '"loop_closures"' in printed
 
 
-def test_lesion_option_reaches_the_engine(tmp_path):
+def test_lesion_and_seed_options_reach_the_resolved_config(tmp_path):
     out = tmp_path / "lesioned"
-    assert main(["run", "--out", str(out), "--no-progress", "--lesion", "dorsal", "--stop", "30"]) == 0
-    config = json.loads((out / "engine_config.json").read_text())
-    assert config["lesioned"] == [False, False, True]
+    args = ["run", "--out", str(out), "--no-progress", "--no-figures", "--stop", "8"]
+    assert main([*args, "--lesion", "dorsal", "--lesion", "ventral", "--seed", "7"]) == 0
+    config = json.loads((out / "config.json").read_text())
+    assert config["lesions"] == {"ventral": True, "intermediate": False, "dorsal": True}
+    assert config["seed"] == 7
+    assert json.loads((out / "metrics.json").read_text())["lesioned"] == [True, False, True]
+    assert not list(out.glob("*.png"))
+
+
+def test_config_file_is_used_and_can_repeat_a_run(tmp_path):
+    first = tmp_path / "first"
+    cfg = tmp_path / "cfg.json"
+    cfg.write_text(json.dumps({"injection": {"initial_strength": 0.5}, "output": {"figures": False}}))
+    assert main(["run", "--config", str(cfg), "--out", str(first), "--no-progress", "--stop", "8"]) == 0
+    resolved = first / "config.json"
+    assert json.loads(resolved.read_text())["injection"]["initial_strength"] == 0.5
+    second = tmp_path / "second"
+    assert main(["run", "--config", str(resolved), "--out", str(second), "--no-progress", "--stop", "8"]) == 0
+    assert (first / "trajectory_corrected.kitti.txt").read_text() == (
+        second / "trajectory_corrected.kitti.txt"
+    ).read_text()
 
 
 def test_bad_kitti_path_gives_one_clear_line_and_exit_2(tmp_path, capsys):
     code = main(["run", "--kitti", str(tmp_path / "nowhere"), "--out", str(tmp_path / "x")])
     assert code == 2
     err = capsys.readouterr().err
-    assert "no such folder" in err and "Traceback" not in err
+    assert "no such folder" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "x").exists()
+
+
+def test_a_folder_that_is_not_kitti_is_named_in_the_error(tmp_path, capsys):
+    assert main(["run", "--kitti", str(tmp_path), "--out", str(tmp_path / "x"), "--no-progress"]) == 2
+    err = capsys.readouterr().err
+    assert str(tmp_path) in err and "sequences" in err
 
 
 def test_bad_config_file_gives_a_clear_error(tmp_path, capsys):
     bad = tmp_path / "bad.json"
-    bad.write_text(json.dumps({"hd": {"n_theta": 0}}))
+    bad.write_text(json.dumps({"injection": {"decay_per_frame": -1}}))
     assert main(["run", "--config", str(bad), "--out", str(tmp_path / "y"), "--no-progress"]) == 2
-    assert "hd.n_theta" in capsys.readouterr().err
+    assert "injection.decay_per_frame" in capsys.readouterr().err
+    assert main(["run", "--config", str(tmp_path / "missing.json"), "--out", str(tmp_path / "y")]) == 2
+    assert "missing.json" in capsys.readouterr().err
 
 
-def test_kitti_sequence_runs_on_real_ground_truth(shared_data, tmp_path):
-    out = tmp_path / "k06"
-    root = shared_data / "kitti_odometry"
-    assert (
-        main(
-            [
-                "run",
-                "--kitti",
-                str(root),
-                "--sequence",
-                "06",
-                "--stop",
-                "300",
-                "--out",
-                str(out),
-                "--no-progress",
-            ]
-        )
-        == 0
+def test_ctrl_c_exits_130_and_keeps_the_frames_processed(tmp_path, monkeypatch, capsys):
+    from hippo_nav.pipeline import Pipeline
+
+    real = Pipeline._process
+
+    def interrupted_at_frame_5(self, i):
+        if i == 5:
+            raise KeyboardInterrupt
+        return real(self, i)
+
+    monkeypatch.setattr(Pipeline, "_process", interrupted_at_frame_5)
+    out = tmp_path / "partial"
+    assert main(["run", "--out", str(out), "--no-progress", "--no-figures"]) == 130
+    assert json.loads((out / "metrics.json").read_text())["frames"] == 5
+    assert read_kitti_poses(out / "trajectory_corrected.kitti.txt").shape == (5, 4, 4)
+    assert "interrupted after 5 frames" in capsys.readouterr().out
+
+
+def test_the_installed_command_runs_as_a_process(tmp_path):
+    done = subprocess.run(
+        [sys.executable, "-m", "hippo_nav.cli", "run", "--kitti", str(tmp_path / "none")],
+        capture_output=True,
+        text=True,
+        check=False,
     )
+    assert done.returncode == 2 and "no such folder" in done.stderr
+
+
+@pytest.mark.data
+def test_kitti_sequence_option_runs_real_frames(shared_data, tmp_path):
+    out = tmp_path / "k01"
+    root = shared_data / "kitti_odometry"
+    args = ["run", "--kitti", str(root), "--sequence", "01", "--stop", "20", "--stride", "2"]
+    assert main([*args, "--out", str(out), "--no-progress", "--no-figures"]) == 0
     metrics = json.loads((out / "metrics.json").read_text())
-    assert metrics["frames"] == 300 and metrics["place_code_final_error_pct_of_distance"] < 2.0
+    assert metrics["frames"] == 10 and metrics["sequence"] == "kitti_01"
+    assert len((out / "ground_truth.kitti.txt").read_text().splitlines()) == 10

@@ -1,4 +1,6 @@
-"""Command line: `hippo-nav run` (the main job) and `hippo-nav figures` (the paper's theory figures)."""
+"""Command line: `hippo-nav run` (the main job: the SLAM pipeline) and `hippo-nav figures` (the paper's
+theory figures). Exit codes: 0 done, 2 bad input (one line on stderr), 130 interrupted by Ctrl-C (the results
+of the frames processed so far are written)."""
 
 from __future__ import annotations
 
@@ -14,7 +16,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     run = sub.add_parser(
         "run",
-        help="drive the spatial-memory network along a sequence (built-in synthetic demo when no dataset is given)",
+        help="run the SLAM pipeline on a stereo sequence (the built-in synthetic demo loop when no dataset is given)",
+        description="Stereo VO, spatial-memory network, view cells and experience map on every frame; writes "
+        "trajectories (KITTI and TUM), the map, metrics.json, the resolved config and figures into --out.",
     )
     run.add_argument("--kitti", metavar="ROOT", help="KITTI odometry root (holds sequences/ and poses/)")
     run.add_argument("--sequence", default="00", help="KITTI sequence number (default 00)")
@@ -22,15 +26,17 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--stop", type=int, default=None, help="frame to stop before")
     run.add_argument("--stride", type=int, default=1, help="use every n-th frame")
     run.add_argument(
-        "--config", metavar="JSON", help="engine config file (unset fields: documented defaults)"
+        "--config", metavar="JSON", help="pipeline config file (any subset of sections; the rest: defaults)"
     )
     run.add_argument(
         "--lesion",
         action="append",
         default=[],
         choices=["ventral", "intermediate", "dorsal"],
-        help="switch a grid module off (repeatable)",
+        help="switch a grid module off (repeatable; adds to the config's lesions)",
     )
+    run.add_argument("--seed", type=int, default=None, help="override the config's seed")
+    run.add_argument("--no-figures", action="store_true", help="skip the figures")
     run.add_argument("--out", default="runs/demo", help="results folder")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -40,8 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from hippo_nav.engine import EngineConfig
-    from hippo_nav.engine.job import run_engine_job
+    from hippo_nav.pipeline import load_config, run
 
     if args.kitti is not None and not Path(args.kitti).is_dir():
         print(
@@ -49,14 +54,16 @@ def _run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 2
-    config = EngineConfig()
-    if args.config:
-        config = EngineConfig.model_validate(json.loads(Path(args.config).read_text()))
+    config = load_config(args.config)
     if args.lesion:
-        config = config.with_lesions(**{name: True for name in args.lesion})
-    metrics = run_engine_job(
+        config = config.with_lesions(*args.lesion)
+    if args.seed is not None:
+        config = config.model_copy(update={"seed": args.seed})
+    if args.no_figures:
+        config = config.model_copy(update={"output": config.output.model_copy(update={"figures": False})})
+    result = run(
         args.out,
-        kitti_root=args.kitti,
+        kitti=args.kitti,
         sequence=args.sequence,
         start=args.start,
         stop=args.stop,
@@ -64,14 +71,35 @@ def _run(args: argparse.Namespace) -> int:
         config=config,
         progress=not args.no_progress,
     )
-    print(json.dumps(metrics, indent=2))
+    print(json.dumps(_summary(result.metrics), indent=2))
+    if result.interrupted:
+        print(f"interrupted after {result.metrics['frames']} frames; results so far written to {args.out}")
+        return 130
     print(f"results written to {args.out}")
-    return 130 if metrics["interrupted"] else 0
+    return 0
+
+
+def _summary(metrics: dict) -> dict:
+    """The headline numbers of a run (metrics.json holds everything)."""
+    keys = ["sequence", "note", "frames", "view_cells", "vertices", "loop_closures", "interrupted"]
+    summary = {k: metrics[k] for k in keys if metrics.get(k) not in (None, "")}
+    for name, entry in metrics.get("errors", {}).items():
+        if isinstance(entry, dict):
+            summary[f"ate_2d_m_{name}"] = entry["ate_2d_m"]
+    timing = metrics.get("timing", {})
+    if timing.get("frames_per_s") is not None:
+        summary["frames_per_s"] = timing["frames_per_s"]
+    return summary
 
 
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
+    import logging
+
     from hippo_nav import HippoNavError
+
+    # Per-frame warnings (VO failures, clamped motion) go to stderr, one line each.
+    logging.basicConfig(level=logging.WARNING, format="hippo-nav: %(message)s")
 
     try:
         if args.command == "run":
@@ -84,6 +112,9 @@ def main(argv: list[str] | None = None) -> int:
     except (HippoNavError, OSError, ValueError) as err:
         print(f"hippo-nav: error: {err}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:  # before the pipeline started (e.g. while rendering the demo)
+        print("hippo-nav: interrupted", file=sys.stderr)
+        return 130
     return 2
 
 

@@ -79,7 +79,7 @@ impl ViewCellParams {
             ));
         }
         let (top, bottom) = self.crop_rows_frac;
-        if !(0.0..1.0).contains(&top) || !(top < bottom && bottom <= 1.0) {
+        if !((0.0..1.0).contains(&top) && top < bottom && bottom <= 1.0) {
             return Err(bad(
                 "crop_rows_frac",
                 format!("({top}, {bottom})"),

@@ -66,7 +66,7 @@ fn shift_is_recovered_and_gives_counter_clockwise_heading() {
     let p = params();
     for shift in [-6isize, -2, 3, 7] {
         let (mut cells, mut rng) = cells_with(30, 3);
-        let q = shifted(&cells.template(5).unwrap().to_vec(), &p, shift, &mut rng);
+        let q = shifted(cells.template(5).unwrap(), &p, shift, &mut rng);
         let obs = cells.observe(&q).unwrap();
         assert_eq!(obs.status, ViewStatus::Familiar);
         assert_eq!(obs.cell_id, Some(5));

@@ -1,0 +1,182 @@
+"""Typed configuration of a pipeline run: small pydantic sections, one file, defaults defined once.
+
+A config file is JSON (`.json`) holding any subset of the sections below; every field it leaves out
+takes its documented default (the engine, map and view-cell defaults come from the Rust cores, so they
+exist in one place only). `load_config(path)` reads and validates a file, `write_config(config, path)`
+writes the fully resolved config, which every run puts into its results folder (`config.json`) so a
+run can be repeated from its own output.
+
+Sections:
+- `seed`: seeds OpenCV's RNG (RANSAC in the VO) so a run is deterministic for a given config and input.
+- `engine`: the spatial-memory network (`hippo_nav.engine.EngineConfig`).
+- `lesions`: "MEC inactivation" of each grid module; applied on top of `engine` with
+  `EngineConfig.with_lesions` (a module lesioned in either place is lesioned).
+- `vo`: keyword parameters of the stereo VO (`hippo_nav.vo`); empty = its own defaults.
+- `views`: view-cell parameters (`hippo_nav.views`); empty = their own defaults.
+- `injection`: how familiar views pull the network back (SPEC §7, see `InjectionConfig`).
+- `map`: experience-map creation and online correction (`hippo_nav.map.MapParams`).
+- `correction`: the final correction run after the last frame (`CorrectionConfig`).
+- `limits`: the motion the engine is given at most; larger VO outputs are clamped (`MotionLimits`).
+- `output`: what is written besides trajectories and metrics (`OutputConfig`).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from hippo_nav._core import HippoNavError
+from hippo_nav.engine import EngineConfig
+from hippo_nav.map import MapParams
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+
+
+class LesionConfig(_Section):
+    """Switch grid modules off ("MEC inactivation"); a lesioned module leaves the Bayesian fusion."""
+
+    ventral: bool = Field(False, description="the coarsest module (k = 1, one bump)")
+    intermediate: bool = Field(False, description="the middle module (k = 2, four bumps)")
+    dorsal: bool = Field(False, description="the finest module (k = 4, sixteen bumps)")
+
+
+class InjectionConfig(_Section):
+    """Familiar-view injection (SPEC §7).
+
+    When a new view cell is created, the network's `view_patterns()` (HD θ-profile, the three layer-II
+    patterns) are stored with it. When a familiar cell is matched, its stored patterns are injected as
+    `I_view` with strength `s = initial_strength · decay_per_frame^a`, where `a` is the number of frames
+    the same cell has been active in a row (0 on the frame it becomes active). Injection stops once
+    `s < min_strength`, so a view that stays put (a parked car, a red light) stops pulling the network.
+    A cell that becomes active again within `revisit_gap_frames` of its last activity (the agent is still
+    on the passage where it was stored) injects nothing: its older state would drag path integration
+    backwards and make the map close onto vertices a few metres behind. With `shift_heading` the stored HD profile is rotated by the match's relative heading first (the
+    camera may face a little differently than when the view was stored).
+    """
+
+    enabled: bool = True
+    initial_strength: float = Field(1.0, ge=0.0, description="s0, injected on the first familiar frame")
+    decay_per_frame: float = Field(0.7, gt=0.0, le=1.0, description="factor per frame the view stays active")
+    min_strength: float = Field(0.05, ge=0.0, description="below this strength nothing is injected")
+    revisit_gap_frames: int = Field(
+        20, ge=0, description="a cell injects only when it was last active more than this many frames ago"
+    )
+    shift_heading: bool = Field(True, description="rotate the stored HD profile by the relative heading")
+
+
+class CorrectionConfig(_Section):
+    """The map correction run once after the last frame (the online passes are in `map`)."""
+
+    method: Literal["least_squares", "relaxation", "none"] = "least_squares"
+    robust_loss: Literal["dcs", "cauchy"] | None = Field(
+        None,
+        description="robust loss on loop links (least squares only): wrong closures lose weight. Off by "
+        "default: a single true closure after a long drift has a large residual and would be rejected.",
+    )
+    robust_scale_chi2: float = Field(1.0, gt=0.0)
+    max_iterations: int = Field(100, ge=1)
+    relaxation_passes: int = Field(200, ge=1)
+    relaxation_gain: float = Field(0.5, gt=0.0, lt=1.0)
+
+
+class MotionLimits(_Section):
+    """What the engine is given at most. The VO can report absurd motion on a bad frame; the engine
+    rejects velocities beyond its velocity axes, so the pipeline clamps here and flags the frame."""
+
+    max_speed_m_s: float = Field(35.0, gt=0.0)
+    max_yaw_rate_rad_s: float = Field(3.0, gt=0.0)
+
+
+class OutputConfig(_Section):
+    figures: bool = Field(True, description="write the figures (cognitive map, neural state, rate maps)")
+    state_frames: list[int] | None = Field(
+        None,
+        description="frames (0-based positions in the run) of the neural state panels; None: first, middle, last",
+    )
+    rate_map_bin_m: float = Field(4.0, gt=0.0, description="spatial bin of the firing-rate maps")
+    save_map: bool = True
+
+
+class PipelineConfig(_Section):
+    """Everything a run needs besides its input."""
+
+    seed: int = 0
+    engine: EngineConfig = Field(default_factory=EngineConfig)
+    lesions: LesionConfig = Field(default_factory=LesionConfig)
+    vo: dict[str, Any] = Field(default_factory=dict)
+    views: dict[str, Any] = Field(default_factory=dict)
+    injection: InjectionConfig = Field(default_factory=InjectionConfig)
+    map: MapParams = Field(default_factory=MapParams)
+    correction: CorrectionConfig = Field(default_factory=CorrectionConfig)
+    limits: MotionLimits = Field(default_factory=MotionLimits)
+    output: OutputConfig = Field(default_factory=OutputConfig)
+
+    def engine_config(self) -> EngineConfig:
+        """The engine config with the lesions of both `engine.lesioned` and `lesions` applied."""
+        lesioned = [
+            a or b
+            for a, b in zip(
+                self.engine.lesioned, (self.lesions.ventral, self.lesions.intermediate, self.lesions.dorsal)
+            )
+        ]
+        return self.engine.with_lesions(*lesioned)
+
+    def with_lesions(self, *names: str) -> PipelineConfig:
+        """A copy with the named modules ("ventral", "intermediate", "dorsal") lesioned."""
+        unknown = set(names) - set(LesionConfig.model_fields)
+        if unknown:
+            raise HippoNavError(
+                f"unknown lesion {sorted(unknown)}; choose from ventral, intermediate, dorsal"
+            )
+        lesions = self.lesions.model_copy(update={name: True for name in names})
+        return self.model_copy(update={"lesions": lesions})
+
+
+def _describe(err: ValidationError) -> str:
+    parts = []
+    for e in err.errors():
+        where = ".".join(str(p) for p in e["loc"]) or "(top level)"
+        parts.append(f"{where}: {e['msg']}")
+    return "; ".join(parts)
+
+
+def config_from_dict(data: dict[str, Any], source: str = "config") -> PipelineConfig:
+    """Validate a dict into a `PipelineConfig`; errors name every bad field."""
+    try:
+        return PipelineConfig.model_validate(data)
+    except ValidationError as err:
+        raise HippoNavError(f"{source}: invalid config: {_describe(err)}") from None
+
+
+def load_config(path: str | Path | None) -> PipelineConfig:
+    """Read a JSON config file (None: all defaults). Unknown keys and bad values are errors."""
+    if path is None:
+        return PipelineConfig()
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as err:
+        raise HippoNavError(f"{path}: cannot read the config file ({err.strerror})") from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as err:
+        raise HippoNavError(f"{path}:{err.lineno}: not valid JSON ({err.msg})") from None
+    if not isinstance(data, dict):
+        raise HippoNavError(f"{path}: a config file holds one JSON object of sections")
+    return config_from_dict(data, str(path))
+
+
+def write_config(config: PipelineConfig, path: str | Path) -> Path:
+    """Write the fully resolved config (every default filled in) as JSON."""
+    path = Path(path)
+    path.write_text(json.dumps(resolved_config_dict(config), indent=2) + "\n")
+    return path
+
+
+def resolved_config_dict(config: PipelineConfig) -> dict[str, Any]:
+    return json.loads(config.model_dump_json(by_alias=True))

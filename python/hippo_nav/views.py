@@ -1,0 +1,124 @@
+"""Local view cells (SPEC §7): templates from images (OpenCV) and matching in Rust (`hippo_views`).
+
+A template is the left image cropped to the rows `crop_rows_frac` (dropping sky and bonnet), shrunk to
+`height_px × width_px` with area averaging (`cv2.INTER_AREA`), then patch-normalised: each pixel minus the
+mean of its `patch_size_px` square neighbourhood, divided by that neighbourhood's standard deviation (plus a
+noise floor of 2 grey levels so flat regions stay near zero instead of amplifying sensor noise). This
+removes exposure and large-scale illumination changes. Matching uses the normalised difference of
+`hippo_views::compare` (0 identical, ≈0.7 unrelated, ≤ 1), so one `novelty_threshold` serves every dataset.
+
+Relative heading: a positive `shift_px` (scene moved right) means the camera has turned counter-clockwise
+since the cell was stored, by `shift_px · field_of_view_rad / width_px`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from typing import Any
+
+import cv2
+import numpy as np
+from pydantic import BaseModel, ConfigDict
+
+from hippo_nav import _core
+from hippo_nav._core import HippoNavError, ViewObservation
+
+__all__ = ["ViewCellConfig", "ViewCells", "ViewObservation", "field_of_view_rad"]
+
+# The Rust defaults are the single source; this model only names and types them.
+_DEFAULTS: dict[str, Any] = json.loads(_core.default_view_config_json())
+
+# Noise floor of the patch standard deviation, in 8-bit grey levels.
+_NOISE_FLOOR_GREY = 2.0
+
+
+class ViewCellConfig(BaseModel):
+    """View-cell parameters (see `crates/hippo_views/src/params.rs` for their meaning and checks)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    width_px: int = _DEFAULTS["width_px"]
+    height_px: int = _DEFAULTS["height_px"]
+    crop_rows_frac: tuple[float, float] = tuple(_DEFAULTS["crop_rows_frac"])  # type: ignore[assignment]
+    patch_size_px: int = _DEFAULTS["patch_size_px"]
+    max_shift_px: int = _DEFAULTS["max_shift_px"]
+    novelty_threshold: float = _DEFAULTS["novelty_threshold"]
+    field_of_view_rad: float = _DEFAULTS["field_of_view_rad"]
+    min_texture: float = _DEFAULTS["min_texture"]
+    coarse_rows: int = _DEFAULTS["coarse_rows"]
+
+
+def field_of_view_rad(fx_px: float, image_width_px: int) -> float:
+    """Horizontal field of view of a pinhole camera, for `ViewCellConfig.field_of_view_rad`."""
+    if not (fx_px > 0 and image_width_px > 0):
+        raise HippoNavError(f"need fx_px > 0 and image_width_px > 0, got {fx_px} and {image_width_px}")
+    return 2.0 * math.atan(image_width_px / (2.0 * fx_px))
+
+
+class ViewCells:
+    """Local view cells: `template_from_image` then `observe` each frame."""
+
+    def __init__(self, config: ViewCellConfig | None = None) -> None:
+        self.config = config or ViewCellConfig()
+        self._cells = _core.ViewCells(self.config.model_dump_json())
+
+    def __len__(self) -> int:
+        return len(self._cells)
+
+    def template_from_image(self, gray: np.ndarray) -> np.ndarray:
+        """(height_px, width_px) float32 template of a gray image (any layout, uint8 or float in 0–255)."""
+        image = np.asarray(gray)
+        if image.ndim != 2:
+            raise HippoNavError(
+                f"expected a gray image of shape (H, W), got shape {image.shape}; convert colour images "
+                "with cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)"
+            )
+        if not (np.issubdtype(image.dtype, np.integer) or np.issubdtype(image.dtype, np.floating)):
+            raise HippoNavError(f"image dtype {image.dtype} is not numeric")
+        cfg = self.config
+        top = round(cfg.crop_rows_frac[0] * image.shape[0])
+        bottom = round(cfg.crop_rows_frac[1] * image.shape[0])
+        if bottom - top < cfg.height_px or image.shape[1] < cfg.width_px:
+            raise HippoNavError(
+                f"image of shape {image.shape} is too small for a {cfg.height_px}×{cfg.width_px} template "
+                f"after cropping rows {cfg.crop_rows_frac}"
+            )
+        crop = np.ascontiguousarray(image[top:bottom], dtype=np.float32)
+        if not np.isfinite(crop).all():
+            raise HippoNavError("image contains NaN or infinite values")
+        small = cv2.resize(crop, (cfg.width_px, cfg.height_px), interpolation=cv2.INTER_AREA)
+        k = (cfg.patch_size_px, cfg.patch_size_px)
+        mean = cv2.blur(small, k, borderType=cv2.BORDER_REFLECT)
+        mean_sq = cv2.blur(small * small, k, borderType=cv2.BORDER_REFLECT)
+        std = np.sqrt(np.maximum(mean_sq - mean * mean, 0.0) + _NOISE_FLOOR_GREY**2)
+        return ((small - mean) / std).astype(np.float32)
+
+    def observe(self, template: np.ndarray) -> ViewObservation:
+        """Match a template; a novel one becomes a new cell (status 'new'), a blank one is 'uninformative'."""
+        return self._cells.observe(_as_float(template))
+
+    def best_match(self, template: np.ndarray) -> tuple[int, float, int] | None:
+        """(cell_id, difference, shift_px) of the closest stored cell, without storing anything."""
+        return self._cells.best_match(_as_float(template))
+
+    def differences(self, template: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Difference and best shift against every cell, in id order."""
+        return self._cells.differences(_as_float(template))
+
+    def add(self, template: np.ndarray) -> int:
+        """Store a template as a new cell without matching (e.g. to restore saved cells)."""
+        return self._cells.add(_as_float(template))
+
+    def templates(self) -> np.ndarray:
+        """Every stored template, shape (len, height_px, width_px)."""
+        return self._cells.templates()
+
+
+def _as_float(template: np.ndarray) -> np.ndarray:
+    t = np.asarray(template)
+    if t.dtype not in (np.float32, np.float64):
+        if not np.issubdtype(t.dtype, np.number):
+            raise HippoNavError(f"template dtype {t.dtype} is not numeric")
+        t = t.astype(np.float32)
+    return t

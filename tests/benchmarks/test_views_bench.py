@@ -1,0 +1,65 @@
+"""View-cell matching speed (`make bench`; skipped by the default test run).
+
+One round = one query template matched against every stored cell without storing it
+(`ViewCells.best_match`, the pruned exact search), against 1 000 and 10 000 stored random patch-normalised
+templates. The baseline is the plain exhaustive search of the same store (`best_match_brute_force`, every
+cell at every shift); compare within one group (`views_1000`, `views_10000`) for the speed-up. Two queries:
+`revisit` (a noisy copy of one stored template, the loop-closure case: the match is found early and prunes
+the rest) and `novel` (an unrelated view, the worst case for pruning). Both searches return the same answer
+(checked before timing).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+from hippo_nav import _core
+from hippo_nav.views import ViewCells
+
+SIZES = (1_000, 10_000)
+
+
+def _random_templates(cells: ViewCells, n: int, rng: np.random.Generator) -> np.ndarray:
+    """`n` templates made by `template_from_image` from smooth random images (street-like mid frequencies)."""
+    cfg = cells.config
+    shape = (4 * cfg.height_px, 4 * cfg.width_px)  # crop keeps 60 % of the rows: still ≥ height_px
+    out = np.empty((n, cfg.height_px, cfg.width_px), np.float32)
+    for k in range(n):
+        noise = cv2.GaussianBlur(rng.normal(size=shape).astype(np.float32), (0, 0), 3.0)
+        image = np.clip(128 + 40 * noise / noise.std(), 0, 255).astype(np.uint8)
+        out[k] = cells.template_from_image(image)
+    return out
+
+
+@pytest.fixture(scope="module")
+def stores() -> dict[int, tuple[ViewCells, dict[str, np.ndarray]]]:
+    rng = np.random.default_rng(0)
+    result = {}
+    for n in SIZES:
+        cells = ViewCells()
+        templates = _random_templates(cells, n, rng)
+        for t in templates:
+            cells.add(t)
+        revisit = templates[n // 3] + rng.normal(scale=0.3, size=templates[0].shape).astype(np.float32)
+        novel = _random_templates(cells, 1, rng)[0]
+        result[n] = (cells, {"revisit": revisit, "novel": novel})
+    return result
+
+
+@pytest.mark.parametrize("query", ["revisit", "novel"])
+@pytest.mark.parametrize("n", SIZES)
+@pytest.mark.parametrize("search", ["pruned", "brute_force"])
+def test_best_match(benchmark, stores, n: int, query: str, search: str) -> None:
+    benchmark.group = f"views_{n}"
+    cells, queries = stores[n]
+    q = queries[query]
+    core: _core.ViewCells = cells._cells
+    fast, brute = core.best_match(q), core.best_match_brute_force(q)
+    assert fast is not None and brute is not None
+    assert fast[0] == brute[0] and fast[2] == brute[2] and fast[1] == pytest.approx(brute[1], abs=1e-6)
+    if query == "revisit":
+        assert fast[0] == n // 3
+    benchmark.extra_info.update(stored=n, query=query, cell_id=fast[0], difference=float(fast[1]))
+    fn = cells.best_match if search == "pruned" else core.best_match_brute_force
+    benchmark(fn, q)

@@ -1,0 +1,190 @@
+"""The whole pipeline: conventions, config, robustness, and the loop closure on a synthetic KITTI loop."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from hippo_nav import HippoNavError
+from hippo_nav.datasets import KittiOdometry
+from hippo_nav.io import read_kitti_poses, read_tum
+from hippo_nav.pipeline import (
+    Pipeline,
+    PipelineConfig,
+    config_from_dict,
+    load_config,
+    planar_step,
+    write_config,
+)
+from hippo_nav.synthetic import (
+    DEMO_SEQUENCE,
+    default_cache_dir,
+    demo_sequence,
+    kitti_trajectory,
+    planar_poses,
+    render_cached,
+    scale_trajectory,
+)
+
+# A real KITTI loop shape: sequence 05, frames 700–1600 (a 560 m block driven once, then ~50 m of it
+# again), every 4th frame, scaled by 0.35 so that a 10 Hz rendering moves ≤ 1.6 m and turns ≤ 2.1 rad/s
+# per second — 225 frames, 234 m. The revisit starts at frame 730 + the loop, i.e. position ≈ 186.
+LOOP_SEQUENCE = ("05", 700, 1600, 4, 0.35)
+REVISIT_FROM = 180
+
+
+@pytest.fixture(scope="module")
+def demo() -> KittiOdometry:
+    return KittiOdometry(demo_sequence(), DEMO_SEQUENCE)
+
+
+@pytest.fixture(scope="module")
+def kitti_loop(shared_data) -> KittiOdometry:
+    """The synthetic stereo loop along KITTI 05's ground truth (rendered once, then cached)."""
+    sequence, start, stop, stride, scale = LOOP_SEQUENCE
+    pose_file = shared_data / "kitti_odometry" / "poses" / f"{sequence}.txt"
+    poses = scale_trajectory(kitti_trajectory(pose_file, start, stop, stride), scale)
+    root = render_cached(poses, default_cache_dir() / "test_loop05", sequence, seed=0)
+    return KittiOdometry(root, sequence)
+
+
+class _Subset:
+    """The first `n` frames of a dataset (same protocol)."""
+
+    def __init__(self, dataset, n: int, fail_at: int | None = None, interrupt_at: int | None = None):
+        self._d, self._n, self._fail_at, self._interrupt_at = dataset, n, fail_at, interrupt_at
+        self.name, self.calibration = dataset.name, dataset.calibration
+        self.frame_indices, self.timestamps_s = dataset.frame_indices[:n], dataset.timestamps_s[:n]
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, i: int):
+        if i == self._interrupt_at:
+            raise KeyboardInterrupt
+        return self._d[i]
+
+    def ground_truth(self):
+        gt = self._d.ground_truth()
+        return None if gt is None else gt[: self._n]
+
+
+def test_planar_step_follows_the_kitti_camera_conventions():
+    # A level camera that drove 2 m forward and 0.5 m to its left while turning 0.1 rad to the left.
+    start, end = planar_poses([0.0, 2.0], [0.0, 0.5], [0.0, 0.1])
+    forward, left, yaw = planar_step(np.linalg.inv(start) @ end)
+    assert (forward, left, yaw) == pytest.approx((2.0, 0.5, 0.1), abs=1e-12)
+    # Seen from a turned camera the same world motion is expressed in that camera's axes.
+    start, end = planar_poses([0.0, 0.0], [0.0, 1.0], [np.pi / 2, np.pi / 2])
+    assert planar_step(np.linalg.inv(start) @ end) == pytest.approx((1.0, 0.0, 0.0), abs=1e-12)
+
+
+def test_config_round_trips_and_names_bad_fields(tmp_path):
+    config = config_from_dict({"seed": 3, "lesions": {"dorsal": True}, "injection": {"initial_strength": 2}})
+    path = write_config(config, tmp_path / "c.json")
+    again = load_config(path)
+    assert again == config
+    assert again.engine_config().lesioned == [False, False, True]
+    assert json.loads(path.read_text())["engine"]["torus_period_m"] == config.engine.torus_period_m
+    with pytest.raises(HippoNavError, match=r"injection\.decay_per_frame"):
+        config_from_dict({"injection": {"decay_per_frame": 2.0}})
+    with pytest.raises(HippoNavError, match="lesions.hippocampus"):
+        config_from_dict({"lesions": {"hippocampus": True}})
+    (tmp_path / "broken.json").write_text('{"seed": 1,\n "map": }')
+    with pytest.raises(HippoNavError, match=r"broken\.json:2"):
+        load_config(tmp_path / "broken.json")
+    assert PipelineConfig().with_lesions("ventral", "dorsal").engine_config().lesioned == [True, False, True]
+
+
+def test_a_short_run_is_deterministic_and_writes_every_result(demo, tmp_path):
+    data = _Subset(demo, 25)
+    config = config_from_dict({"output": {"figures": False}})
+    first = Pipeline(data, config).run(tmp_path / "a")
+    second = Pipeline(data, config).run(tmp_path / "b")
+    np.testing.assert_array_equal(first.corrected_world_from_camera, second.corrected_world_from_camera)
+    np.testing.assert_array_equal(first.vo_world_from_camera, second.vo_world_from_camera)
+    assert first.record.view_cell == second.record.view_cell
+    out = tmp_path / "a"
+    for name in ("vo", "online", "corrected", "neural"):
+        assert read_kitti_poses(out / f"trajectory_{name}.kitti.txt").shape == (25, 4, 4)
+        times, _ = read_tum(out / f"trajectory_{name}.tum.txt")
+        np.testing.assert_allclose(times, data.timestamps_s, atol=1e-6)
+    resolved = json.loads((out / "config.json").read_text())
+    assert {"engine", "vo", "views", "injection", "map", "lesions"} <= resolved.keys()
+    assert load_config(out / "config.json") == config.model_validate(resolved)
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["frames"] == 25 and not metrics["interrupted"]
+    assert set(metrics["timing"]["per_frame_ms"]) == {"load", "vo", "views", "engine", "map", "record"}
+    assert (out / "map.bin").stat().st_size > 0 and (out / "frames.csv").read_text().count("\n") == 26
+
+
+def test_interrupt_keeps_the_frames_processed(demo, tmp_path):
+    result = Pipeline(
+        _Subset(demo, 40, interrupt_at=12), config_from_dict({"output": {"figures": False}})
+    ).run(tmp_path)
+    assert result.interrupted and result.metrics["frames"] == 12
+    assert read_kitti_poses(tmp_path / "trajectory_corrected.kitti.txt").shape == (12, 4, 4)
+    assert json.loads((tmp_path / "metrics.json").read_text())["interrupted"] is True
+
+
+class _FailingOdometry:
+    """Wraps a VO: raises on chosen frames, or reports an absurd 1 km step."""
+
+    def __init__(self, inner, fail: set[int], absurd: set[int]):
+        self.inner, self.fail, self.absurd, self.i = inner, fail, absurd, 0
+
+    def process(self, frame):
+        i, self.i = self.i, self.i + 1
+        step = self.inner.process(frame)
+        if i in self.fail:
+            raise HippoNavError("no features")
+        if i in self.absurd:
+            jump = np.eye(4)
+            jump[2, 3] = 1000.0
+            return type("Step", (), {"camera_prev_from_camera_cur": jump, "status": "ok"})()
+        return step
+
+
+def test_vo_failures_and_absurd_motion_are_flagged_not_fatal(demo):
+    from hippo_nav.pipeline.frontend import make_odometry
+
+    data = _Subset(demo, 20)
+    odometry = _FailingOdometry(make_odometry(data.calibration, {}), fail={6, 7}, absurd={12})
+    result = Pipeline(data, odometry=odometry).run(None)
+    record = result.record
+    assert len(record) == 20
+    assert record.vo_status[6] == record.vo_status[7] == "failed"
+    # The prior is the last good step: the failed frames repeat frame 5's motion.
+    assert record.speed_m_s[6] == pytest.approx(record.speed_m_s[5])
+    assert record.motion_flag[12] == "clamped" and abs(record.speed_m_s[12]) <= 35.0
+    assert np.isfinite(result.corrected_world_from_camera).all()
+
+
+@pytest.mark.slow
+def test_synthetic_kitti_loop_is_closed_and_correction_beats_the_vo(kitti_loop, tmp_path):
+    result = Pipeline(kitti_loop, PipelineConfig()).run(tmp_path)
+    metrics = result.metrics
+    closures = np.array(metrics["loop_closure_frames"])
+    assert (closures >= REVISIT_FROM).any(), closures
+    errors = metrics["errors"]
+    assert errors["corrected"]["ate_2d_m"] < errors["vo"]["ate_2d_m"]
+    assert errors["corrected"]["ate_3d_m"] < errors["vo"]["ate_3d_m"]
+    assert result.map_export["link_is_loop"].any()
+    for name in ("cognitive_map.png", "rate_maps.png"):
+        assert (tmp_path / name).stat().st_size > 10_000, name
+    assert len(list(tmp_path.glob("neural_state_*.png"))) >= 2
+
+
+@pytest.mark.data
+def test_real_kitti_frames_run_and_write_metrics_and_figures(shared_data, tmp_path):
+    data = KittiOdometry(shared_data / "kitti_odometry", "06")
+    result = Pipeline(data, PipelineConfig()).run(tmp_path)
+    metrics = json.loads((tmp_path / "metrics.json").read_text())
+    assert metrics["frames"] == len(data) == 51
+    assert metrics["errors"]["vo"]["ate_3d_m"] is not None
+    assert metrics["vo_status_counts"].get("ok", 0) >= 45
+    assert result.metrics["distance_gt_m"] > 10
+    for name in metrics["figures"]:
+        assert (tmp_path / name).stat().st_size > 10_000, name
+    assert "cognitive_map.png" in metrics["figures"] and "rate_maps.png" in metrics["figures"]
