@@ -48,7 +48,7 @@ class VoParams(BaseModel):
     klt_window_px: int | None = Field(
         None,
         ge=5,
-        description="KLT window side (odd); None: width/25 within 11–21 px (13 at 320 px, 21 on KITTI)",
+        description="KLT window side (odd); None: width/25 within 11–15 px (13 at 320 px, 15 on KITTI)",
     )
     klt_levels: int = Field(4, ge=0, le=8, description="KLT pyramid levels above the image")
     forward_backward_px: float = Field(1.0, gt=0.0, description="max forward–backward KLT error")
@@ -68,6 +68,7 @@ class VoParams(BaseModel):
     stereo_refinement: bool = Field(True, description="refine the step on left and right reprojections")
     max_speed_m_s: float = Field(60.0, gt=0.0, description="a faster step is rejected (prior used)")
     max_yaw_rate_rad_s: float = Field(3.0, gt=0.0, description="a faster turn is rejected (prior used)")
+    seed: int = Field(0, description="seeds OpenCV's RNG (RANSAC) on reset, so runs are repeatable")
     default_dt_s: float = Field(0.1, gt=0.0, description="frame interval used when timestamps do not advance")
 
 
@@ -128,7 +129,7 @@ class StereoOdometry:
                 f"calibration unusable for stereo VO: fx={self.fx}, fy={self.fy}, baseline={self.baseline_m} m "
                 "(need positive focal lengths and P1[0,3] = -fx·baseline < 0)"
             )
-        w = self.params.klt_window_px or int(np.clip(calibration.image_size_px[0] // 25, 11, 21))
+        w = self.params.klt_window_px or int(np.clip(calibration.image_size_px[0] // 25, 11, 15))
         w |= 1
         self._klt = {
             "winSize": (w, w),
@@ -139,6 +140,7 @@ class StereoOdometry:
 
     def reset(self) -> None:
         """Forget the previous frame and the motion prior (the next frame starts a new trajectory)."""
+        cv2.setRNGSeed(self.params.seed)
         self._previous: _StereoPoints | None = None
         self._previous_time_s: float | None = None
         self._prior_step = np.eye(4)  # camera_prev_from_camera_cur of the last good frame
@@ -371,15 +373,19 @@ class StereoOdometry:
                 dx = np.zeros((len(xs), 3, 6))
                 dx[:, :, :3] = -_skew(xm)
                 dx[:, :, 3:] = np.eye(3)
-                residuals.append(r)
-                jacobians.append(du @ dx)
-            r = np.concatenate(residuals)  # (m, 2)
-            jac = np.concatenate(jacobians)  # (m, 2, 6)
-            norm = np.linalg.norm(r, axis=1)
-            weight = np.where(norm <= huber_px, 1.0, huber_px / np.maximum(norm, 1e-12))
-            jw = jac * weight[:, None, None]
-            hessian = np.einsum("mki,mkj->ij", jw, jac)
-            gradient = np.einsum("mki,mk->i", jw, r)
+                j = du @ dx
+                if offset_m > 0:
+                    # Right image: only u (the disparity) is new; its v repeats the left one, plus
+                    # whatever row offset the rectification left, which would tilt the pitch.
+                    r, j = r[:, :1], j[:, :1]
+                residuals.append(r.reshape(-1))
+                jacobians.append(j.reshape(-1, 6))
+            r = np.concatenate(residuals)  # (m,) pixel residuals
+            jac = np.concatenate(jacobians)  # (m, 6)
+            weight = np.where(np.abs(r) <= huber_px, 1.0, huber_px / np.maximum(np.abs(r), 1e-12))
+            jw = jac * weight[:, None]
+            hessian = jw.T @ jac
+            gradient = jw.T @ r
             try:
                 delta = -np.linalg.solve(hessian, gradient)
             except np.linalg.LinAlgError:

@@ -1,0 +1,204 @@
+"""Stereo VO: accuracy on the project's synthetic sequences and on real KITTI frames, and robustness."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+from hippo_nav import HippoNavError
+from hippo_nav.datasets import KittiOdometry, StereoFrame
+from hippo_nav.metrics import relative_errors_kitti
+from hippo_nav.synthetic import DEMO_SEQUENCE, demo_sequence, planar_poses
+from hippo_nav.vo import StereoOdometry, VoParams, planar_step, run_odometry
+
+SHORT_LENGTHS_M = (10.0, 20.0, 30.0, 40.0, 50.0)
+
+
+@pytest.fixture(scope="module")
+def demo() -> KittiOdometry:
+    return KittiOdometry(demo_sequence(), DEMO_SEQUENCE)
+
+
+def _rebased(poses: np.ndarray) -> np.ndarray:
+    return np.linalg.inv(poses[0]) @ poses
+
+
+def _velocity_errors(dataset, steps) -> tuple[float, float]:
+    """RMS errors of the VO's yaw rate (rad/s) and speed (m/s) against the ground truth."""
+    gt = dataset.ground_truth()
+    yaw_err, speed_err = [], []
+    for i in range(1, len(gt)):
+        dt = dataset.timestamps_s[i] - dataset.timestamps_s[i - 1]
+        forward, left, yaw = planar_step(np.linalg.inv(gt[i - 1]) @ gt[i])
+        yaw_rate, speed = steps[i].planar_velocities()
+        yaw_err.append(yaw_rate - yaw / dt)
+        speed_err.append(speed - np.copysign(np.hypot(forward, left), forward) / dt)
+    return float(np.sqrt(np.mean(np.square(yaw_err)))), float(np.sqrt(np.mean(np.square(speed_err))))
+
+
+def test_planar_velocities_follow_the_camera_conventions():
+    # 1.5 m forward, 0.2 m left, 0.1 rad left turn in 0.1 s.
+    start, end = planar_poses([0.0, 1.5], [0.0, 0.2], [0.0, 0.1])
+    from hippo_nav.vo import VoStep
+
+    step = VoStep(np.linalg.inv(start) @ end, "ok", 0.1, 0, 0, 0, 0.0)
+    yaw_rate, speed = step.planar_velocities()
+    assert yaw_rate == pytest.approx(1.0) and speed == pytest.approx(np.hypot(1.5, 0.2) / 0.1)
+    backwards = VoStep(np.linalg.inv(end) @ start, "ok", 0.1, 0, 0, 0, 0.0)
+    assert backwards.planar_velocities()[1] < 0
+    assert VoStep(np.eye(4), "first", 0.0, 0, 0, 0, 0.0).planar_velocities() == (0.0, 0.0)
+
+
+@pytest.mark.slow
+def test_synthetic_loop_within_one_percent(demo):
+    """The demo loop (279 m, corners of 1.7 rad/s): KITTI t_rel over 100 and 200 m segments ≤ 1 %."""
+    est, steps = run_odometry(demo)
+    gt = _rebased(demo.ground_truth())
+    assert all(s.status == "ok" for s in steps[1:]), [s.status for s in steps]
+    errors = relative_errors_kitti(gt, est, lengths=(100.0, 200.0), step=1)
+    yaw_rms, speed_rms = _velocity_errors(demo, steps)
+    print(
+        f"demo: t_rel {errors['t_rel_percent']:.3f} %, r_rel {errors['r_rel_deg_per_100m']:.3f} deg/100 m, "
+        f"yaw rate RMS {yaw_rms:.4f} rad/s, speed RMS {speed_rms:.3f} m/s"
+    )
+    assert errors["segments"] > 100
+    assert errors["t_rel_percent"] <= 1.0
+    assert errors["r_rel_deg_per_100m"] <= 3.0
+    assert yaw_rms < 0.1 and speed_rms < 1.0  # at 10 Hz: < 0.6° and < 10 cm per frame
+
+
+def test_same_input_gives_the_same_trajectory(demo):
+    first, _ = run_odometry(_Frames(demo, range(12)))
+    second, _ = run_odometry(_Frames(demo, range(12)))
+    np.testing.assert_array_equal(first, second)
+
+
+class _Frames:
+    """Chosen frames of a dataset, optionally altered (same protocol)."""
+
+    def __init__(self, dataset, indices, alter=None):
+        self._d, self._idx, self._alter = dataset, list(indices), alter or {}
+        self.name, self.calibration = dataset.name, dataset.calibration
+        self.timestamps_s = dataset.timestamps_s[self._idx]
+
+    def __len__(self) -> int:
+        return len(self._idx)
+
+    def __getitem__(self, i: int) -> StereoFrame:
+        frame = self._d[self._idx[i]]
+        return self._alter[i](frame) if i in self._alter else frame
+
+    def ground_truth(self):
+        return self._d.ground_truth()[self._idx]
+
+
+def _blank(frame: StereoFrame) -> StereoFrame:
+    flat = np.full_like(frame.left, 90)
+    return dataclasses.replace(frame, left=flat, right=flat.copy())
+
+
+def test_low_texture_frames_are_flagged_and_bridged_by_the_prior(demo):
+    """A covered lens for three frames: flagged, the constant-velocity prior stands in, tracking resumes."""
+    data = _Frames(demo, range(30), alter={12: _blank, 13: _blank, 14: _blank})
+    est, steps = run_odometry(data)
+    statuses = [s.status for s in steps]
+    assert statuses[12:16] == ["low_texture"] * 4  # frame 15 has no tracked points from blank frame 14
+    assert statuses[16:] == ["ok"] * 14
+    for i in range(12, 16):
+        np.testing.assert_array_equal(
+            steps[i].camera_prev_from_camera_cur, steps[11].camera_prev_from_camera_cur
+        )
+    gt = _rebased(data.ground_truth())
+    # The demo drives straight there, so the prior is nearly right: no jump, the end error stays small.
+    assert np.linalg.norm(est[-1, :3, 3] - gt[-1, :3, 3]) < 0.02 * 30 * 1.6
+
+
+def test_blurred_frame_does_not_make_a_jump(demo):
+    import cv2
+
+    def blur(frame):
+        return dataclasses.replace(
+            frame,
+            left=cv2.GaussianBlur(frame.left, (0, 0), 2.5),
+            right=cv2.GaussianBlur(frame.right, (0, 0), 2.5),
+        )
+
+    data = _Frames(demo, range(10), alter={5: blur})
+    _, steps = run_odometry(data)
+    gt = data.ground_truth()
+    true_step = np.linalg.norm((np.linalg.inv(gt[5]) @ gt[6])[:3, 3])
+    for i in (5, 6):
+        assert steps[i].status in ("ok", "low_texture")
+        assert abs(np.linalg.norm(steps[i].camera_prev_from_camera_cur[:3, 3]) - true_step) < 0.1 * true_step
+
+
+def test_bad_frames_and_calibrations_give_clear_errors(demo):
+    vo = StereoOdometry(demo.calibration)
+    frame = demo[0]
+    with pytest.raises(HippoNavError, match="sizes differ"):
+        vo.process(dataclasses.replace(frame, right=frame.right[:, :-8]))
+    with pytest.raises(HippoNavError, match="calibration is for 320×96"):
+        vo.process(dataclasses.replace(frame, left=frame.left[:-8], right=frame.right[:-8]))
+    with pytest.raises(HippoNavError, match="8-bit gray"):
+        vo.process(dataclasses.replace(frame, left=frame.left.astype(np.float32)))
+    # A failed frame leaves the odometry usable.
+    assert vo.process(frame).status == "first"
+    p1 = demo.calibration.P1.copy()
+    p1[0, 3] = 0.0
+    with pytest.raises(HippoNavError, match="baseline"):
+        StereoOdometry(dataclasses.replace(demo.calibration, P1=p1))
+    with pytest.raises(ValueError, match="min_inliers"):
+        VoParams(min_inliers=2)
+
+
+# --- real KITTI frames ---------------------------------------------------------------------------------
+@pytest.mark.data
+def test_real_kitti_06_urban(shared_data):
+    """Sequence 06, frames 0–50 (60 m): t_rel over every segment length the data allows ≤ 2.5 %."""
+    data = KittiOdometry(shared_data / "kitti_odometry", "06")
+    est, steps = run_odometry(data)
+    gt = _rebased(data.ground_truth())
+    errors = relative_errors_kitti(gt, est, lengths=SHORT_LENGTHS_M, step=1)
+    yaw_rms, speed_rms = _velocity_errors(data, steps)
+    print(
+        f"KITTI 06: t_rel {errors['t_rel_percent']:.3f} %, r_rel {errors['r_rel_deg_per_100m']:.2f} deg/100 m, "
+        f"yaw rate RMS {yaw_rms:.4f} rad/s, speed RMS {speed_rms:.3f} m/s"
+    )
+    assert sum(s.ok for s in steps) == len(steps) - 1
+    assert errors["segments"] > 100
+    assert errors["t_rel_percent"] <= 2.5
+    assert yaw_rms < 0.02 and speed_rms < 0.4
+
+
+@pytest.mark.data
+def test_real_kitti_01_highway_scale_follows_the_right_camera_baseline(shared_data):
+    """Sequence 01, frames 0–50 (52 m, a highway ramp).
+
+    These images' right camera is not camera 1: with calib.txt's camera-1 baseline (0.537 m) every step
+    comes out 14–15 % too long while the rotations match the ground truth to 0.03°/frame, which is what
+    the 0.469 m camera-0 → camera-3 baseline predicts (0.537 / 0.469 = 1.145). So the test checks that
+    the scale follows the stated baseline, then measures accuracy with the camera-3 baseline taken from
+    the same calib.txt (P3), not fitted to the ground truth."""
+    data = KittiOdometry(shared_data / "kitti_odometry", "01")
+    gt = _rebased(data.ground_truth())
+    est, _ = run_odometry(data)
+    true_steps = np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1)
+    ratio = np.median(np.linalg.norm(np.diff(est[:, :3, 3], axis=0), axis=1) / true_steps)
+    baseline_cam3_m = -data.calibration.P3[0, 3] / data.calibration.P3[0, 0]
+    assert ratio == pytest.approx(data.calibration.baseline_m / baseline_cam3_m, rel=0.02)
+
+    p1 = data.calibration.P1.copy()
+    p1[0, 3] = -data.calibration.fx * baseline_cam3_m
+    data.calibration = dataclasses.replace(data.calibration, P1=p1)
+    est, steps = run_odometry(data)
+    errors = relative_errors_kitti(gt, est, lengths=SHORT_LENGTHS_M, step=1)
+    per_length = {k: round(v["t_rel_percent"], 2) for k, v in errors["per_length"].items()}
+    yaw_rms, speed_rms = _velocity_errors(data, steps)
+    print(
+        f"KITTI 01 (camera-3 baseline): t_rel {errors['t_rel_percent']:.3f} % (by length {per_length}), "
+        f"yaw rate RMS {yaw_rms:.4f} rad/s, speed RMS {speed_rms:.3f} m/s"
+    )
+    assert errors["segments"] > 100
+    assert errors["t_rel_percent"] <= 2.5
+    assert yaw_rms < 0.02 and speed_rms < 0.8
