@@ -241,6 +241,18 @@ def test_blank_and_dark_frames_are_uninformative() -> None:
     ramp = np.broadcast_to(np.linspace(60, 120, 1241), (376, 1241))
     assert cells.observe(cells.template_from_image(ramp)).status == "uninformative"
     assert len(cells) == 1
+    # A dark frame of pure sensor noise (σ = 1 and 2 grey levels) is not a place: no cell is made for it,
+    # while the same textured scene at 1/12 of its brightness still is informative.
+    rng = np.random.default_rng(3)
+    for sigma in (1.0, 2.0):
+        noise = np.clip(20 + rng.normal(0, sigma, (376, 1241)), 0, 255).astype(np.uint8)
+        assert cells.observe(cells.template_from_image(noise)).status == "uninformative", sigma
+    assert len(cells) == 1
+    dim = (textured_image(52) // 12).astype(np.uint8)
+    assert cells.observe(cells.template_from_image(dim)).status == "new"
+    # A float image scaled to [0, 1] is a units mistake, not a blank view.
+    with pytest.raises(HippoNavError, match="multiply by 255"):
+        cells.template_from_image(textured_image(53) / 255.0)
     # The empty store: a textured view becomes cell 0 with difference 1.
     fresh = ViewCells()
     obs = fresh.observe(fresh.template_from_image(textured_image(51)))
