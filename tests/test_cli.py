@@ -111,3 +111,32 @@ def test_kitti_sequence_option_runs_real_frames(shared_data, tmp_path):
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["frames"] == 10 and metrics["sequence"] == "kitti_01"
     assert len((out / "ground_truth.kitti.txt").read_text().splitlines()) == 10
+
+
+def test_a_corrupt_frame_mid_run_keeps_what_was_written_and_names_the_file(tmp_path, capsys):
+    import shutil
+
+    from hippo_nav.synthetic import DEMO_SEQUENCE, demo_sequence
+
+    # A 20-frame copy of the demo in KITTI layout, with frame 12's left image corrupted.
+    source, root = demo_sequence(), tmp_path / "kitti"
+    seq = root / "sequences" / DEMO_SEQUENCE
+    for cam in ("image_0", "image_1"):
+        (seq / cam).mkdir(parents=True)
+        for i in range(20):
+            shutil.copy(
+                source / "sequences" / DEMO_SEQUENCE / cam / f"{i:06d}.png", seq / cam / f"{i:06d}.png"
+            )
+    for name in ("calib.txt", "times.txt"):
+        shutil.copy(source / "sequences" / DEMO_SEQUENCE / name, seq / name)
+    shutil.copytree(source / "poses", root / "poses")
+    (seq / "image_0" / "000012.png").write_bytes(b"\x89PNG not really")
+
+    out = tmp_path / "out"
+    args = ["run", "--kitti", str(root), "--sequence", DEMO_SEQUENCE, "--stop", "20", "--out", str(out)]
+    assert main([*args, "--no-progress", "--no-figures"]) == 2
+    err = capsys.readouterr().err
+    assert "000012.png" in err and "12 frames before it" in err and "Traceback" not in err
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["frames"] == 12 and metrics["interrupted"] and "000012.png" in metrics["stopped_by_error"]
+    assert read_kitti_poses(out / "trajectory_corrected.kitti.txt").shape == (12, 4, 4)

@@ -35,6 +35,7 @@ import numpy as np
 
 from hippo_nav._core import HippoNavError
 from hippo_nav.engine import SpatialMemory, SpatialReadout, ViewPatterns
+from hippo_nav.io import DatasetError
 from hippo_nav.map import new_experience_map
 from hippo_nav.pipeline.config import PipelineConfig
 from hippo_nav.pipeline.frontend import make_odometry, make_view_cells
@@ -177,6 +178,7 @@ class Pipeline:
 
             bar = tqdm(total=len(self.dataset), desc=self.dataset_name, unit="frame", dynamic_ncols=True)
         interrupted = False
+        stopped_by: DatasetError | None = None
         try:
             for i in frames:
                 self._process(i)
@@ -191,13 +193,28 @@ class Pipeline:
         except KeyboardInterrupt:
             interrupted = True
             log.warning("interrupted after %d frames; writing what was processed", len(self.record))
+        except DatasetError as err:
+            # A missing or corrupt frame mid-sequence: keep (and write) everything before it, then report.
+            if len(self.record) == 0:
+                raise
+            interrupted, stopped_by = True, err
         finally:
             if bar is not None:
                 bar.close()
         if len(self.record) == 0:
             raise HippoNavError("no frame was processed; nothing to write")
         self._snapshot(len(self.record) - 1, final=True)
-        return finish_run(self, out_dir, interrupted)
+        result = finish_run(
+            self, out_dir, interrupted, stopped_by=None if stopped_by is None else str(stopped_by)
+        )
+        if stopped_by is not None:
+            where = f"written to {out_dir}" if out_dir is not None else "returned in the exception's `result`"
+            error = DatasetError(
+                f"{stopped_by} — stopped there; the results of the {len(self.record)} frames before it are {where}"
+            )
+            error.result = result  # type: ignore[attr-defined]
+            raise error
+        return result
 
     @property
     def dataset_name(self) -> str:

@@ -175,7 +175,9 @@ def _write_frames_csv(path: Path, record: Any) -> None:
             )
 
 
-def finish_run(pipeline: Pipeline, out_dir: str | Path | None, interrupted: bool) -> RunResult:
+def finish_run(
+    pipeline: Pipeline, out_dir: str | Path | None, interrupted: bool, stopped_by: str | None = None
+) -> RunResult:
     """Correct the map, build the trajectories and metrics, and write the results folder."""
     record = pipeline.record
     n = len(record)
@@ -204,6 +206,7 @@ def finish_run(pipeline: Pipeline, out_dir: str | Path | None, interrupted: bool
         "frames": n,
         "frames_requested": len(pipeline.dataset),
         "interrupted": interrupted,
+        "stopped_by_error": stopped_by,
         "seed": pipeline.config.seed,
         "lesioned": list(pipeline.engine.config.lesioned),
         "distance_vo_m": float(trajectory_distances_m(vo)[-1]),
