@@ -11,3 +11,17 @@ def test_version_matches_cargo_workspace():
 
 def test_error_is_a_value_error():
     assert issubclass(hippo_nav.HippoNavError, ValueError)
+
+
+def test_the_pipeline_is_reachable_from_the_package_without_loading_it_on_import():
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, hippo_nav; assert 'cv2' not in sys.modules; hippo_nav.run; assert 'cv2' in sys.modules"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
+    import hippo_nav
+
+    result = hippo_nav.run(None, stop=4, progress=False)
+    assert result.metrics["frames"] == 4 and result.out_dir is None
