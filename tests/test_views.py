@@ -244,9 +244,10 @@ def test_blank_and_dark_frames_are_uninformative() -> None:
     # A dark frame of pure sensor noise (σ = 1 and 2 grey levels) is not a place: no cell is made for it,
     # while the same textured scene at 1/12 of its brightness still is informative.
     rng = np.random.default_rng(3)
-    for sigma in (1.0, 2.0):
-        noise = np.clip(20 + rng.normal(0, sigma, (376, 1241)), 0, 255).astype(np.uint8)
-        assert cells.observe(cells.template_from_image(noise)).status == "uninformative", sigma
+    for shape in ((376, 1241), (96, 320)):
+        for sigma in (1.0, 2.0):
+            noise = np.clip(20 + rng.normal(0, sigma, shape), 0, 255).astype(np.uint8)
+            assert cells.observe(cells.template_from_image(noise)).status == "uninformative", (shape, sigma)
     assert len(cells) == 1
     dim = (textured_image(52) // 12).astype(np.uint8)
     assert cells.observe(cells.template_from_image(dim)).status == "new"

@@ -1,12 +1,25 @@
 //! The store of view cells and the search for the best-matching one.
-use crate::compare::{best_shift, coarse_bound, summarise, Summary};
+use crate::compare::{best_shift, coarse_exceeds, rank_key, summarise, Summary};
 use crate::error::ViewError;
 use crate::params::ViewCellParams;
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicU32, Ordering};
 
-/// Candidates examined per parallel batch in the pruned search. Fixed (not tied to the thread count) so
-/// the result never depends on the machine.
-const BATCH: usize = 64;
+/// Templates compared first (those with the lowest ranking keys) to get a good difference to beat.
+fn seed_count(n: usize) -> usize {
+    (n / 128).clamp(1, 32).min(n)
+}
+
+/// Candidate (difference, id, shift); the better of two is the lower difference, ties to the lowest id.
+type Candidate = (f32, usize, isize);
+
+fn better(a: Candidate, b: Candidate) -> Candidate {
+    if b.0 < a.0 || (b.0 == a.0 && b.1 < a.1) {
+        b
+    } else {
+        a
+    }
+}
 
 /// Best stored template for a query.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -137,44 +150,90 @@ impl ViewCells {
         )
     }
 
-    /// The stored template closest to `template` (ties: lowest id), or `None` when nothing is stored.
-    ///
-    /// Exact and fast: templates are ranked by their coarse lower bound (in parallel), then compared
-    /// exactly in that order, batch by batch in parallel, each comparison abandoning a shift as soon as it
-    /// cannot beat the best difference found; the search stops when the next lower bound exceeds it.
-    pub fn best_match(&self, template: &[f32]) -> Result<Option<ViewMatch>, ViewError> {
-        let q = self.check(template)?;
+    /// Compare stored template `id` with the query unless it provably cannot beat the shared best
+    /// difference `beat` (f32 bits; differences are ≥ 0 so their bits order like their values): its
+    /// whole-column bound `key`, then its coarse bound, exceed it. Lowers `beat` when it finds better.
+    fn visit(
+        &self,
+        query: &[f32],
+        q: &Summary,
+        id: usize,
+        key: f32,
+        beat: &AtomicU32,
+    ) -> Option<Candidate> {
         let p = &self.params;
-        let mut ranked: Vec<(f32, usize)> = self
-            .summaries
-            .par_iter()
-            .enumerate()
-            .map(|(id, s)| (coarse_bound(&q, s, p.width_px, p.max_shift_px), id))
-            .collect();
-        ranked.par_sort_unstable_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-
-        let mut best: Option<(f32, usize, isize)> = None;
-        for batch in ranked.chunks(BATCH) {
-            let beat = best.map_or(f32::INFINITY, |b| b.0);
-            // Bounds are exact up to rounding: keep a small slack so equal-valued templates are still seen.
-            if batch[0].0 > beat * (1.0 + 1e-5) + 1e-7 {
-                break;
-            }
-            let found: Vec<Option<(f32, usize, isize)>> = batch
-                .par_iter()
-                .map(|&(bound, id)| {
-                    if bound > beat * (1.0 + 1e-5) + 1e-7 {
-                        return None;
-                    }
-                    self.exact(template, &q, id, beat).map(|(d, s)| (d, id, s))
-                })
-                .collect();
-            for (d, id, s) in found.into_iter().flatten() {
-                if best.is_none_or(|(bd, bid, _)| d < bd || (d == bd && id < bid)) {
-                    best = Some((d, id, s));
-                }
+        let b = f32::from_bits(beat.load(Ordering::Relaxed));
+        if b.is_finite() {
+            // The bounds are exact up to rounding: a small slack keeps equal-valued templates in.
+            let threshold = b * (1.0 + 1e-5) + 1e-7;
+            if key > threshold
+                || coarse_exceeds(
+                    q,
+                    &self.summaries[id],
+                    p.width_px,
+                    p.max_shift_px,
+                    threshold,
+                )
+            {
+                return None;
             }
         }
+        let (d, s) = self.exact(query, q, id, b)?;
+        beat.fetch_min(d.to_bits(), Ordering::Relaxed);
+        Some((d, id, s))
+    }
+
+    /// The stored template closest to `template` (ties: lowest id), or `None` when nothing is stored.
+    ///
+    /// Exact and fast. A cheap whole-column key picks a few likely templates, which are compared first
+    /// to get a good difference to beat; then every other template is visited once, in parallel, sharing
+    /// the best difference found so far: it is skipped when its coarse lower bound exceeds that difference,
+    /// and otherwise compared exactly, each shift abandoned as soon as it cannot win. When the query is
+    /// familiar the match is found first and almost everything is skipped after a few block sums; when it
+    /// is novel nothing can be skipped, and the failed bound test costs about one shift of the coarse bound,
+    /// so the search costs about the plain exhaustive one. The answer is the same as
+    /// `best_match_brute_force` whatever the order or thread count: a template is only dropped when it
+    /// provably cannot match or beat a difference some template really has.
+    pub fn best_match(&self, template: &[f32]) -> Result<Option<ViewMatch>, ViewError> {
+        let q = self.check(template)?;
+        let n = self.len();
+        if n == 0 {
+            return Ok(None);
+        }
+        let p = &self.params;
+        let by_key = |a: &(f32, usize), b: &(f32, usize)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
+        let keys: Vec<f32> = self
+            .summaries
+            .par_iter()
+            .with_min_len(256)
+            .map(|s| rank_key(&q, s, p.width_px, p.max_shift_px))
+            .collect();
+        let mut order: Vec<(f32, usize)> = keys.iter().copied().zip(0..).collect();
+        let k = seed_count(n);
+        if k < n {
+            order.select_nth_unstable_by(k, by_key);
+            order.truncate(k);
+        }
+        order.sort_unstable_by(by_key);
+
+        let beat = AtomicU32::new(f32::INFINITY.to_bits());
+        let mut seeded = vec![false; n];
+        for &(_, id) in &order {
+            seeded[id] = true;
+        }
+        // The most likely template alone, so that the other seeds can already be pruned against it.
+        let first = self.visit(template, &q, order[0].1, order[0].0, &beat);
+        let seeds = order[1..]
+            .par_iter()
+            .filter_map(|&(key, id)| self.visit(template, &q, id, key, &beat))
+            .reduce_with(better);
+        let rest = (0..n)
+            .into_par_iter()
+            .with_min_len(32)
+            .filter(|&id| !seeded[id])
+            .filter_map(|id| self.visit(template, &q, id, keys[id], &beat))
+            .reduce_with(better);
+        let best = [first, seeds, rest].into_iter().flatten().reduce(better);
         Ok(best.map(|(d, id, s)| ViewMatch {
             cell_id: id,
             difference: d,

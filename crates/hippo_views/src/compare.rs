@@ -18,7 +18,11 @@
 //! Coarse lower bound: summing `b − a` over blocks of `k` rows before taking absolute values can only
 //! shrink the numerator (|Σ e| ≤ Σ |e|) while the denominator is exact (from per-column |·| sums), so
 //! `d_coarse(s) ≤ d(s)`: templates whose coarse bound already exceeds the best difference found can be
-//! skipped without changing the answer.
+//! skipped without changing the answer. The search evaluates that bound lazily (`coarse_exceeds`): it only
+//! needs to know whether the bound beats a threshold, so it stops at the first shift that cannot be ruled
+//! out (cheap when pruning fails) and abandons each shift's sum once it passes the threshold (cheap when
+//! pruning succeeds). Whole-column sums (`k` = height) give a much cheaper but looser key (`rank_key`),
+//! used only to choose which templates to compare first.
 
 /// Sum of absolute differences of two equal-length slices. Eight independent accumulators let the
 /// compiler vectorise (a single f32 accumulator forces strict sequential order).
@@ -60,6 +64,10 @@ pub(crate) struct Summary {
     pub col_abs: Vec<f32>,
     /// Row-block sums (ceil(height / k) × width).
     pub coarse: Vec<f32>,
+    /// Σ_r v[r, x] per column (width values): the coarsest blocks, for the ranking key.
+    pub col_sum: Vec<f32>,
+    /// Prefix sums of `col_abs` in f64 (width + 1 values): O(1) denominators for the bounds.
+    pub abs_prefix: Vec<f64>,
     /// Mean |v| over the template: its texture.
     pub texture: f32,
 }
@@ -76,12 +84,38 @@ pub(crate) fn summarise(t: &[f32], width: usize, height: usize, coarse_rows: usi
             block[x] += row[x];
         }
     }
+    let mut col_sum = vec![0.0f32; width];
+    for block in coarse.chunks_exact(width) {
+        for (c, v) in col_sum.iter_mut().zip(block) {
+            *c += v;
+        }
+    }
+    let mut abs_prefix = Vec::with_capacity(width + 1);
+    let mut acc = 0.0f64;
+    abs_prefix.push(acc);
+    for v in &col_abs {
+        acc += f64::from(*v);
+        abs_prefix.push(acc);
+    }
     let texture = col_abs.iter().sum::<f32>() / (width * height) as f32;
     Summary {
         col_abs,
         coarse,
+        col_sum,
+        abs_prefix,
         texture,
     }
+}
+
+/// The denominator of `d(s)` from prefix sums: the same real value as `denominator`, computed in O(1) with
+/// a different (smaller) rounding error; only used by the bounds, whose threshold carries a slack for it.
+#[inline]
+pub(crate) fn fast_denominator(a_sum: &Summary, b_sum: &Summary, shift: isize) -> f32 {
+    let (x0, x1) = overlap(shift, a_sum.col_abs.len());
+    let bs = (x0 as isize - shift) as usize;
+    let be = bs + (x1 - x0);
+    ((a_sum.abs_prefix[x1] - a_sum.abs_prefix[x0]) + (b_sum.abs_prefix[be] - b_sum.abs_prefix[bs]))
+        as f32
 }
 
 /// Σ over the overlap of the per-column magnitudes of both templates (the denominator of `d(s)`).
@@ -160,7 +194,8 @@ pub(crate) fn best_shift(
     best
 }
 
-/// Coarse lower bound of `min_s d(s)` (see the module docs).
+/// Coarse lower bound of `min_s d(s)` (see the module docs), computed in full (reference for the tests).
+#[cfg(test)]
 pub(crate) fn coarse_bound(
     a_sum: &Summary,
     b_sum: &Summary,
@@ -175,6 +210,43 @@ pub(crate) fn coarse_bound(
                 numerator(&a_sum.coarse, &b_sum.coarse, width, rows, s, f32::INFINITY),
                 den,
             )
+        })
+        .fold(f32::INFINITY, f32::min)
+}
+
+/// Whether the coarse bound proves `d(s) > threshold` at every shift, i.e. the template cannot beat
+/// `threshold`. Stops at the first shift whose bound is not above the threshold, and abandons a shift's
+/// block sum as soon as it passes it, so a failed test costs about one shift of the coarse bound.
+pub(crate) fn coarse_exceeds(
+    a_sum: &Summary,
+    b_sum: &Summary,
+    width: usize,
+    max_shift: usize,
+    threshold: f32,
+) -> bool {
+    let rows = a_sum.coarse.len() / width;
+    for s in shift_order(max_shift) {
+        let den = fast_denominator(a_sum, b_sum, s);
+        if den <= f32::MIN_POSITIVE {
+            return false; // blank overlap: d(s) = 1 by convention, never ruled out here
+        }
+        let limit = threshold * den;
+        if numerator(&a_sum.coarse, &b_sum.coarse, width, rows, s, limit) <= limit {
+            return false;
+        }
+    }
+    true
+}
+
+/// Cheap key for the order of comparison: the bound with whole columns as blocks (a lower bound too, but
+/// too loose to prune; only its ranking is used, so any rounding in it is harmless).
+pub(crate) fn rank_key(a_sum: &Summary, b_sum: &Summary, width: usize, max_shift: usize) -> f32 {
+    shift_order(max_shift)
+        .map(|s| {
+            let (x0, x1) = overlap(s, width);
+            let bs = (x0 as isize - s) as usize;
+            let num = sad(&a_sum.col_sum[x0..x1], &b_sum.col_sum[bs..bs + (x1 - x0)]);
+            ratio(num, fast_denominator(a_sum, b_sum, s))
         })
         .fold(f32::INFINITY, f32::min)
 }
@@ -240,6 +312,20 @@ mod tests {
                 "seed {seed}: bound {bound} above exact {best}"
             );
             assert!(bound > 0.0);
+            let key = rank_key(&sa, &sb, w, smax);
+            assert!(
+                key <= bound + 1e-5,
+                "seed {seed}: key {key} above bound {bound}"
+            );
+            for thr in [bound * 0.99, bound * 1.01, best * 0.5, best] {
+                assert_eq!(
+                    coarse_exceeds(&sa, &sb, w, smax, thr),
+                    bound > thr,
+                    "seed {seed}: threshold {thr}, bound {bound}"
+                );
+            }
+            let den = denominator(&sa.col_abs, &sb.col_abs, 3);
+            assert!((fast_denominator(&sa, &sb, 3) - den).abs() <= 1e-6 * den);
         }
     }
 

@@ -108,6 +108,66 @@ fn pruned_search_equals_brute_force() {
     assert_eq!(cells.best_match(&dup).unwrap().unwrap().cell_id, 100);
 }
 
+/// Smooth-ish textures (neighbouring values correlated, as in patch-normalised street images) make the
+/// coarse bounds tight and near-duplicates common: the hardest case for the pruning to stay exact.
+fn smooth_template(rng: &mut ChaCha8Rng, p: &ViewCellParams) -> Vec<f32> {
+    let raw = random_template(rng, p);
+    let w = p.width_px;
+    (0..raw.len())
+        .map(|i| {
+            let (r, x) = (i / w, i % w);
+            let right = raw[r * w + (x + 1) % w];
+            let below = raw[((r + 1) % p.height_px) * w + x];
+            raw[i] + right + below
+        })
+        .collect()
+}
+
+#[test]
+fn pruned_search_equals_brute_force_for_novel_queries() {
+    let p = params();
+    for (seed, smooth) in [(6u64, false), (7, true)] {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut cells = ViewCells::new(p.clone()).unwrap();
+        for _ in 0..600 {
+            let t = if smooth {
+                smooth_template(&mut rng, &p)
+            } else {
+                random_template(&mut rng, &p)
+            };
+            cells.add(&t).unwrap();
+        }
+        for k in 0..30 {
+            let q = if smooth {
+                smooth_template(&mut rng, &p)
+            } else {
+                random_template(&mut rng, &p)
+            };
+            let fast = cells.best_match(&q).unwrap().unwrap();
+            let slow = cells.best_match_brute_force(&q).unwrap().unwrap();
+            assert_eq!(fast, slow, "seed {seed}, query {k}");
+            assert!(
+                fast.difference > p.novelty_threshold,
+                "query {k} is not novel"
+            );
+        }
+    }
+    // Tiny stores (fewer cells than seeds) and a single cell.
+    for n in [1usize, 2, 5] {
+        let (cells, mut rng) = cells_with(n, 8);
+        let q = random_template(&mut rng, &p);
+        assert_eq!(
+            cells.best_match(&q).unwrap(),
+            cells.best_match_brute_force(&q).unwrap()
+        );
+    }
+    let empty = ViewCells::new(p.clone()).unwrap();
+    assert_eq!(
+        empty.best_match(&vec![0.5; p.template_len()]).unwrap(),
+        None
+    );
+}
+
 #[test]
 fn observe_creates_cells_for_novel_views_only() {
     let p = params();
