@@ -151,6 +151,6 @@ mod tests {
 
     #[test]
     fn silent_pattern_has_no_bump() {
-        assert!(find_bumps(&vec![0.0f64; 16], 4, 0.3).is_empty());
+        assert!(find_bumps(&[0.0f64; 16], 4, 0.3).is_empty());
     }
 }

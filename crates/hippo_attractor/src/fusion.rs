@@ -34,7 +34,7 @@ pub fn fuse_bumps(bumps: &[Bump2]) -> Result<FusedEstimate> {
         let mut weighted_offset = 0.0;
         for b in bumps {
             let s = b.std_rad[axis];
-            if !(s.is_finite() && s > 0.0) || !b.mean_rad[axis].is_finite() {
+            if !(s.is_finite() && s > 0.0 && b.mean_rad[axis].is_finite()) {
                 return Err(AttractorError::BadBump(format!(
                     "bump with centre {:?} and std {:?}: std must be positive and finite",
                     b.mean_rad, b.std_rad

@@ -213,9 +213,11 @@ impl<T: Real> HdRing<T> {
         for j in 0..nv {
             let row = &m[j * nt..(j + 1) * nt];
             let (mut cj, mut sj) = (T::zero(), T::zero());
-            for i in 0..nt {
-                cj = cj + row[i] * self.cos_shift[j * nt + i];
-                sj = sj + row[i] * self.sin_shift[j * nt + i];
+            let cos_row = &self.cos_shift[j * nt..(j + 1) * nt];
+            let sin_row = &self.sin_shift[j * nt..(j + 1) * nt];
+            for ((&r, &co), &si) in row.iter().zip(cos_row).zip(sin_row) {
+                cj = cj + r * co;
+                sj = sj + r * si;
             }
             c[j] = cj.f64();
             s[j] = sj.f64();

@@ -394,8 +394,8 @@ impl<T: Real> SpatialMemory<T> {
             .next();
         if let Some(b) = self.last_place {
             if let Some(prev) = self.place_tracked {
-                for a in 0..2 {
-                    self.place_pos_rad[a] += wrap(b.mean_rad[a] - prev[a]);
+                for (a, previous) in prev.iter().enumerate() {
+                    self.place_pos_rad[a] += wrap(b.mean_rad[a] - previous);
                 }
             }
             self.place_tracked = Some(b.mean_rad);

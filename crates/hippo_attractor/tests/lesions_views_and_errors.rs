@@ -129,10 +129,9 @@ fn bad_parameters_are_rejected_with_the_parameter_named() {
             "grid.n_nu",
         ),
         (
-            {
-                let mut p = SpatialMemoryParams::default();
-                p.tau_s = f64::NAN;
-                p
+            SpatialMemoryParams {
+                tau_s: f64::NAN,
+                ..Default::default()
             },
             "tau_s",
         ),
@@ -153,10 +152,9 @@ fn bad_parameters_are_rejected_with_the_parameter_named() {
             "grid.j0",
         ),
         (
-            {
-                let mut p = SpatialMemoryParams::default();
-                p.max_substep_s = 0.2;
-                p
+            SpatialMemoryParams {
+                max_substep_s: 0.2,
+                ..Default::default()
             },
             "max_substep_s",
         ),
@@ -182,8 +180,10 @@ fn bad_parameters_are_rejected_with_the_parameter_named() {
 
 #[test]
 fn bad_inputs_are_rejected_and_leave_the_state_untouched() {
-    let mut p = SpatialMemoryParams::default();
-    p.settle_s = 0.1;
+    let p = SpatialMemoryParams {
+        settle_s: 0.1,
+        ..Default::default()
+    };
     let mut sm = SpatialMemory::<f32>::new(p).unwrap();
     sm.step(0.1, 5.0, 0.1, None).unwrap();
     let before = sm.readout();

@@ -53,6 +53,16 @@ macro_rules! with_engine {
     };
 }
 
+/// A familiar view's stored patterns as Python passes them: HD profile, layer-II patterns, strength.
+type ViewArg<'a> = (
+    PyReadonlyArrayDyn<'a, f64>,
+    Vec<Option<PyReadonlyArrayDyn<'a, f64>>>,
+    f64,
+);
+/// A bump as Python sees it: ((centre x, y) rad, (std x, y) rad, peak).
+type BumpTuple = ((f64, f64), (f64, f64), f64);
+type ArrayPair<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>);
+
 /// The whole spatial-memory network (HD ring, three grid modules, place torus).
 #[pyclass(name = "SpatialMemory", module = "hippo_nav._core")]
 pub struct PySpatialMemory {
@@ -117,11 +127,7 @@ impl PySpatialMemory {
         yaw_rate_rad_s: f64,
         speed_m_s: f64,
         dt_s: f64,
-        view: Option<(
-            PyReadonlyArrayDyn<'_, f64>,
-            Vec<Option<PyReadonlyArrayDyn<'_, f64>>>,
-            f64,
-        )>,
+        view: Option<ViewArg<'_>>,
     ) -> PyResult<String> {
         let view = match view {
             None => None,
@@ -312,7 +318,7 @@ fn default_engine_config_json() -> PyResult<String> {
 fn find_bumps(
     pattern: PyReadonlyArrayDyn<'_, f64>,
     threshold_frac: f64,
-) -> PyResult<Vec<((f64, f64), (f64, f64), f64)>> {
+) -> PyResult<Vec<BumpTuple>> {
     let shape = pattern.shape().to_vec();
     if shape.len() != 2 || shape[0] != shape[1] || shape[0] < 2 {
         return Err(HippoNavError::new_err(format!(
@@ -378,7 +384,7 @@ fn grid_recurrent_input_check<'py>(
     config_json: &str,
     module: usize,
     activity: PyReadonlyArrayDyn<'_, f64>,
-) -> PyResult<(Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>)> {
+) -> PyResult<ArrayPair<'py>> {
     let params: SpatialMemoryParams = serde_json::from_str(config_json)
         .map_err(|e| HippoNavError::new_err(format!("invalid engine config: {e}")))?;
     let p = params
