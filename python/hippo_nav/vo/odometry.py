@@ -228,11 +228,9 @@ class StereoOdometry:
     def _measure(self, prev: _StereoPoints, cur: _StereoPoints, prior: np.ndarray):
         """(step, status, n_tracked, n_inliers, rmse) from tracking `prev`'s points into `cur`.
 
-        Tracking starts from the motion prior's prediction. A sudden change of motion (a car turning
-        into a corner) makes that prediction wrong by tens of pixels, and KLT can then settle on a
-        consistent but wrong set of matches in repetitive texture; so when few tracks agree with the
-        PnP solution, tracking is repeated from the unmoved pixels and the hypothesis with more
-        inliers wins."""
+        A sudden change of motion (a car turning into a corner) makes the prior's prediction wrong by
+        tens of pixels, and KLT started there can settle on a consistent but wrong set of matches in
+        repetitive texture; so several motion hypotheses are tried in turn (see below)."""
         p = self.params
         if len(prev.pixels) < p.min_inliers:
             return (prior, "low_texture", 0, 0, float("nan"))
