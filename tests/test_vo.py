@@ -37,6 +37,20 @@ def _velocity_errors(dataset, steps) -> tuple[float, float]:
     return float(np.sqrt(np.mean(np.square(yaw_err)))), float(np.sqrt(np.mean(np.square(speed_err))))
 
 
+def _evaluate(name: str, dataset, est, steps, lengths) -> tuple[dict, float, float]:
+    """KITTI relative errors over `lengths` (every start frame) and the velocity RMS errors, printed."""
+    gt = _rebased(dataset.ground_truth())
+    errors = relative_errors_kitti(gt, est, lengths=lengths, step=1)
+    yaw_rms, speed_rms = _velocity_errors(dataset, steps)
+    per_length = {k: round(v["t_rel_percent"], 2) for k, v in errors["per_length"].items()}
+    print(
+        f"{name}: t_rel {errors['t_rel_percent']:.3f} % (by length {per_length}), "
+        f"r_rel {errors['r_rel_deg_per_100m']:.2f} deg/100 m, yaw rate RMS {yaw_rms:.4f} rad/s, "
+        f"speed RMS {speed_rms:.3f} m/s"
+    )
+    return errors, yaw_rms, speed_rms
+
+
 def test_planar_velocities_follow_the_camera_conventions():
     # 1.5 m forward, 0.2 m left, 0.1 rad left turn in 0.1 s.
     start, end = planar_poses([0.0, 1.5], [0.0, 0.2], [0.0, 0.1])
@@ -54,14 +68,8 @@ def test_planar_velocities_follow_the_camera_conventions():
 def test_synthetic_loop_within_one_percent(demo):
     """The demo loop (279 m, corners of 1.7 rad/s): KITTI t_rel over 100 and 200 m segments ≤ 1 %."""
     est, steps = run_odometry(demo)
-    gt = _rebased(demo.ground_truth())
     assert all(s.status == "ok" for s in steps[1:]), [s.status for s in steps]
-    errors = relative_errors_kitti(gt, est, lengths=(100.0, 200.0), step=1)
-    yaw_rms, speed_rms = _velocity_errors(demo, steps)
-    print(
-        f"demo: t_rel {errors['t_rel_percent']:.3f} %, r_rel {errors['r_rel_deg_per_100m']:.3f} deg/100 m, "
-        f"yaw rate RMS {yaw_rms:.4f} rad/s, speed RMS {speed_rms:.3f} m/s"
-    )
+    errors, yaw_rms, speed_rms = _evaluate("demo", demo, est, steps, (100.0, 200.0))
     assert errors["segments"] > 100
     assert errors["t_rel_percent"] <= 1.0
     assert errors["r_rel_deg_per_100m"] <= 3.0
@@ -158,13 +166,7 @@ def test_real_kitti_06_urban(shared_data):
     """Sequence 06, frames 0–50 (60 m): t_rel over every segment length the data allows ≤ 2.5 %."""
     data = KittiOdometry(shared_data / "kitti_odometry", "06")
     est, steps = run_odometry(data)
-    gt = _rebased(data.ground_truth())
-    errors = relative_errors_kitti(gt, est, lengths=SHORT_LENGTHS_M, step=1)
-    yaw_rms, speed_rms = _velocity_errors(data, steps)
-    print(
-        f"KITTI 06: t_rel {errors['t_rel_percent']:.3f} %, r_rel {errors['r_rel_deg_per_100m']:.2f} deg/100 m, "
-        f"yaw rate RMS {yaw_rms:.4f} rad/s, speed RMS {speed_rms:.3f} m/s"
-    )
+    errors, yaw_rms, speed_rms = _evaluate("KITTI 06", data, est, steps, SHORT_LENGTHS_M)
     assert sum(s.ok for s in steps) == len(steps) - 1
     assert errors["segments"] > 100
     assert errors["t_rel_percent"] <= 2.5
@@ -192,13 +194,7 @@ def test_real_kitti_01_highway_scale_follows_the_right_camera_baseline(shared_da
     p1[0, 3] = -data.calibration.fx * baseline_cam3_m
     data.calibration = dataclasses.replace(data.calibration, P1=p1)
     est, steps = run_odometry(data)
-    errors = relative_errors_kitti(gt, est, lengths=SHORT_LENGTHS_M, step=1)
-    per_length = {k: round(v["t_rel_percent"], 2) for k, v in errors["per_length"].items()}
-    yaw_rms, speed_rms = _velocity_errors(data, steps)
-    print(
-        f"KITTI 01 (camera-3 baseline): t_rel {errors['t_rel_percent']:.3f} % (by length {per_length}), "
-        f"yaw rate RMS {yaw_rms:.4f} rad/s, speed RMS {speed_rms:.3f} m/s"
-    )
+    errors, yaw_rms, speed_rms = _evaluate("KITTI 01 (camera-3 baseline)", data, est, steps, SHORT_LENGTHS_M)
     assert errors["segments"] > 100
     assert errors["t_rel_percent"] <= 2.5
     assert yaw_rms < 0.02 and speed_rms < 0.8

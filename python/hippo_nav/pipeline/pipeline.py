@@ -39,7 +39,7 @@ from hippo_nav.io import DatasetError
 from hippo_nav.map import new_experience_map
 from hippo_nav.pipeline.config import PipelineConfig
 from hippo_nav.pipeline.frontend import make_odometry, make_view_cells
-from hippo_nav.vo import planar_step
+from hippo_nav.vo import planar_step, planar_velocities
 
 log = logging.getLogger("hippo_nav.pipeline")
 
@@ -242,8 +242,7 @@ class Pipeline:
         # 3. Spatial memory integrates the motion (not on the first frame: there is no motion yet).
         yaw_rate, speed, flag = 0.0, 0.0, "ok" if vo_status == "ok" else f"vo:{vo_status}"
         if dt_s > 0:
-            yaw_rate = yaw_rad / dt_s
-            speed = float(np.copysign(np.hypot(forward_m, left_m), forward_m)) / dt_s
+            yaw_rate, speed = planar_velocities(step, dt_s)
             readout, yaw_rate, speed, engine_flag = self._engine_step(yaw_rate, speed, dt_s, view)
             flag = engine_flag or flag
         else:

@@ -7,7 +7,15 @@ world_from_camera, steps = run_odometry(dataset)        # (n, 4, 4) and one VoSt
 ```
 """
 
-from hippo_nav.vo.odometry import STATUSES, StereoOdometry, VoParams, VoStep, planar_step
+from hippo_nav.vo.odometry import STATUSES, StereoOdometry, VoParams, VoStep, planar_step, planar_velocities
 from hippo_nav.vo.run import run_odometry
 
-__all__ = ["STATUSES", "StereoOdometry", "VoParams", "VoStep", "planar_step", "run_odometry"]
+__all__ = [
+    "STATUSES",
+    "StereoOdometry",
+    "VoParams",
+    "VoStep",
+    "planar_step",
+    "planar_velocities",
+    "run_odometry",
+]

@@ -90,11 +90,7 @@ class VoStep:
 
     def planar_velocities(self) -> tuple[float, float]:
         """(yaw_rate_rad_s, speed_m_s) of the step; speed is negative when reversing, 0 on the first frame."""
-        if self.dt_s <= 0:
-            return 0.0, 0.0
-        forward_m, left_m, yaw_rad = planar_step(self.camera_prev_from_camera_cur)
-        speed = float(np.copysign(np.hypot(forward_m, left_m), forward_m))
-        return yaw_rad / self.dt_s, speed / self.dt_s
+        return planar_velocities(self.camera_prev_from_camera_cur, self.dt_s)
 
 
 def planar_step(camera_prev_from_camera_cur: np.ndarray) -> tuple[float, float, float]:
@@ -104,6 +100,17 @@ def planar_step(camera_prev_from_camera_cur: np.ndarray) -> tuple[float, float, 
     # The current camera's z axis seen from the previous camera; yaw turns about −y (left positive).
     yaw = np.arctan2(-t[0, 2], t[2, 2])
     return float(forward), float(left), float(yaw)
+
+
+def planar_velocities(camera_prev_from_camera_cur: np.ndarray, dt_s: float) -> tuple[float, float]:
+    """(yaw_rate_rad_s, speed_m_s) the engine integrates for a step taking `dt_s` (0, 0 when dt_s ≤ 0).
+
+    Speed is the planar chord length, negative when the camera moved backwards."""
+    if dt_s <= 0:
+        return 0.0, 0.0
+    forward_m, left_m, yaw_rad = planar_step(camera_prev_from_camera_cur)
+    speed_m = float(np.copysign(np.hypot(forward_m, left_m), forward_m))
+    return yaw_rad / dt_s, speed_m / dt_s
 
 
 @dataclass
@@ -255,11 +262,11 @@ class StereoOdometry:
                 best = outcome
             if outcome[2] >= p.min_inliers and outcome[2] >= p.min_inlier_ratio * outcome[1]:
                 break
-        transform, n_tracked, n_inliers = best
-        if transform is None or n_inliers < p.min_inliers or n_inliers < p.min_accept_ratio * n_tracked:
+        solution, n_tracked, n_inliers = best
+        if solution is None or n_inliers < p.min_inliers or n_inliers < p.min_accept_ratio * n_tracked:
             return (prior, "low_texture", n_tracked, n_inliers, float("nan"))
-        rmse = transform[1]
-        return (np.linalg.inv(transform[0]), "ok", n_tracked, n_inliers, rmse)
+        cur_from_prev, rmse = solution
+        return (np.linalg.inv(cur_from_prev), "ok", n_tracked, n_inliers, rmse)
 
     def _solve(self, prev: _StereoPoints, cur: _StereoPoints, guess: np.ndarray, cur_from_prev: np.ndarray):
         """((cur_from_prev, rmse) or None, n_tracked, n_inliers) for one initial flow hypothesis."""
