@@ -40,6 +40,27 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--out", default="runs/demo", help="results folder")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
 
+    render = sub.add_parser(
+        "render",
+        help="render the synthetic stereo street along a KITTI ground truth into a KITTI root",
+        description="Renders a synthetic stereo sequence along ROOT/poses/NN.txt with the timestamps of "
+        "ROOT/sequences/NN/times.txt into a KITTI root at --out (images, calib.txt, times.txt, poses/NN.txt). "
+        "The camera keeps a fixed height above the road, so every pass sees a street the same way. "
+        "Resumable: frames already written are kept. Run it afterwards with "
+        "`hippo-nav run --kitti OUT --sequence NN`.",
+    )
+    render.add_argument("--kitti", metavar="ROOT", required=True, help="KITTI root with poses/NN.txt")
+    render.add_argument("--sequence", required=True, help="sequence number, e.g. 00")
+    render.add_argument("--start", type=int, default=None, help="first frame to render (default 0)")
+    render.add_argument("--stop", type=int, default=None, help="frame to stop before (default: all)")
+    render.add_argument("--out", required=True, help="KITTI root to write (created if missing)")
+    render.add_argument(
+        "--size", default="320x96", metavar="WxH", help="image size in pixels (default 320x96, KITTI's aspect)"
+    )
+    render.add_argument("--seed", type=int, default=0, help="texture seed of the synthetic world (default 0)")
+    render.add_argument("--workers", type=int, default=2, help="rendering threads (default 2)")
+    render.add_argument("--no-progress", action="store_true", help="no progress bar")
+
     figures = sub.add_parser("figures", help="write the paper's theory figures as PNG files")
     figures.add_argument("--out", default="runs/figures", help="folder for the PNG files")
     return parser
@@ -79,6 +100,30 @@ def _run(args: argparse.Namespace) -> int:
     return 0
 
 
+def _render(args: argparse.Namespace) -> int:
+    from hippo_nav.synthetic import render_kitti
+
+    try:
+        width, height = (int(v) for v in args.size.lower().split("x"))
+    except ValueError:
+        print(f"hippo-nav: error: --size {args.size!r}: give WIDTHxHEIGHT, e.g. 320x96", file=sys.stderr)
+        return 2
+    root = render_kitti(
+        args.kitti,
+        args.sequence,
+        args.out,
+        args.start,
+        args.stop,
+        image_size_px=(width, height),
+        seed=args.seed,
+        workers=args.workers,
+        progress=not args.no_progress,
+    )
+    print(f"rendered sequence {args.sequence} into {root}; run it with: "
+          f"hippo-nav run --kitti {root} --sequence {args.sequence}")  # fmt: skip
+    return 0
+
+
 def _summary(metrics: dict) -> dict:
     """The headline numbers of a run (metrics.json holds everything)."""
     keys = ["sequence", "note", "frames", "view_cells", "vertices", "loop_closures", "interrupted"]
@@ -104,6 +149,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "run":
             return _run(args)
+        if args.command == "render":
+            return _render(args)
         if args.command == "figures":
             from hippo_nav.theory.figures import write_all_figures
 

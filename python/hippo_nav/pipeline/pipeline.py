@@ -448,10 +448,16 @@ def run(
     stride: int = 1,
     config: PipelineConfig | None = None,
     progress: bool = True,
+    odometry: Any = None,
 ) -> RunResult:
-    """The `hippo-nav run` command as a function: open the input, run the pipeline, write `out_dir`."""
+    """The `hippo-nav run` command as a function: open the input, run the pipeline, write `out_dir`.
+
+    `odometry` replaces the built-in stereo VO (e.g. another system's trajectory replayed from a file,
+    see `hippo_nav.vo.replay`); it may also be a callable taking the opened dataset and returning one."""
     dataset = open_input(kitti, sequence, start, stop, stride, progress=progress)
     note = getattr(dataset, "note", "")
     if note:
         log.info("%s", note)
-    return Pipeline(dataset, config, progress=progress).run(out_dir)
+    if callable(odometry) and not hasattr(odometry, "process"):
+        odometry = odometry(dataset)
+    return Pipeline(dataset, config, progress=progress, odometry=odometry).run(out_dir)

@@ -11,13 +11,21 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from hippo_nav.synthetic.render import KITTI_FOCAL_RATIO, render_cached, render_sequence, stereo_projections
+from hippo_nav.synthetic.render import (
+    KITTI_FOCAL_RATIO,
+    render_cached,
+    render_kitti,
+    render_sequence,
+    stereo_projections,
+)
 from hippo_nav.synthetic.trajectories import (
     kitti_trajectory,
     level_trajectory,
     loop_trajectory,
     path_length_m,
     planar_poses,
+    road_heights_m,
+    road_trajectory,
     scale_trajectory,
 )
 from hippo_nav.synthetic.world import StreetWorld
@@ -55,7 +63,10 @@ __all__ = [
     "loop_trajectory",
     "path_length_m",
     "planar_poses",
+    "road_heights_m",
+    "road_trajectory",
     "render_cached",
+    "render_kitti",
     "render_sequence",
     "scale_trajectory",
     "stereo_projections",

@@ -53,6 +53,9 @@ def render_sequence(
     seed: int = 0,
     *,
     frame_rate_hz: float = 10.0,
+    timestamps_s: np.ndarray | None = None,
+    frames: np.ndarray | None = None,
+    keep_existing: bool = False,
     focal_ratio: float = KITTI_FOCAL_RATIO,
     street_half_width_m: float = 7.0,
     camera_height_m: float = 1.65,
@@ -62,8 +65,12 @@ def render_sequence(
 ) -> Path:
     """Render the stereo pair at every pose and write a KITTI-layout sequence under `out_root`; returns it.
 
+    The world is built from the whole trajectory; `frames` (indices into it) limits which frames are
+    rendered, while times.txt and the pose file always cover every pose, so a partial render is a KITTI
+    sequence whose images stop early. `timestamps_s` (one per pose) replaces `i / frame_rate_hz`.
     `noise_std` adds seeded Gaussian sensor noise (gray levels) independently to each image.
-    Frames are written as they are rendered, so an interrupted run leaves the finished frames on disk.
+    Each image is written to a temporary name and renamed, so an interrupted render leaves only complete
+    frames; with `keep_existing` frames whose two images exist are not rendered again (resuming).
     `workers` threads render frames in parallel (NumPy releases the GIL in its array loops); the output
     does not depend on it.
     """
@@ -77,6 +84,14 @@ def render_sequence(
     width, height = (int(x) for x in image_size_px)
     if width < 16 or height < 16 or baseline_m <= 0 or frame_rate_hz <= 0:
         raise DatasetError("image size must be at least 16x16 px, baseline and frame rate positive")
+    if timestamps_s is None:
+        timestamps_s = np.arange(len(poses)) / frame_rate_hz
+    timestamps_s = np.asarray(timestamps_s, dtype=np.float64).reshape(-1)
+    if len(timestamps_s) != len(poses) or not np.all(np.isfinite(timestamps_s)):
+        raise DatasetError(f"need one finite timestamp per pose: {len(timestamps_s)} for {len(poses)} poses")
+    selected = np.arange(len(poses)) if frames is None else np.asarray(frames, dtype=np.int64).reshape(-1)
+    if selected.size and (selected.min() < 0 or selected.max() >= len(poses)):
+        raise DatasetError(f"frames to render must lie in [0, {len(poses)})")
 
     p0, p1 = stereo_projections((width, height), baseline_m, focal_ratio)
     K = p0[:, :3]
@@ -88,11 +103,16 @@ def render_sequence(
     for camera in ("image_0", "image_1"):
         (sequence_dir / camera).mkdir(parents=True, exist_ok=True)
     _write_calibration(sequence_dir / "calib.txt", p0, p1)
-    np.savetxt(sequence_dir / "times.txt", np.arange(len(poses)) / frame_rate_hz, fmt="%.6e")
+    np.savetxt(sequence_dir / "times.txt", timestamps_s, fmt="%.6e")
     write_kitti_poses(root / "poses" / f"{sequence}.txt", poses)
 
     right_from_left = np.eye(4)
     right_from_left[0, 3] = baseline_m  # right camera centre, in camera-0 coordinates
+
+    def done(i: int) -> bool:
+        return all((sequence_dir / camera / f"{i:06d}.png").is_file() for camera in ("image_0", "image_1"))
+
+    todo = [int(i) for i in selected if not (keep_existing and done(int(i)))]
 
     def render_frame(i: int) -> None:
         # Noise is seeded per frame so the images do not depend on the order threads finish in.
@@ -102,20 +122,28 @@ def render_sequence(
             if noise_std > 0:
                 noisy = image + noise_rng.normal(0.0, noise_std, image.shape)
                 image = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
-            if not cv2.imwrite(str(sequence_dir / camera / f"{i:06d}.png"), image):
+            path = sequence_dir / camera / f"{i:06d}.png"
+            partial = path.with_name(f".{path.stem}.partial.png")
+            if not cv2.imwrite(str(partial), image):
                 raise DatasetError(f"{sequence_dir / camera}: cannot write images there")
+            partial.replace(path)  # atomic: a frame on disk is a complete frame
 
     bar = None
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=len(poses), desc=f"rendering {sequence}", unit="frame")
-    with ThreadPoolExecutor(max_workers=max(int(workers), 1)) as pool:
-        for _ in pool.map(render_frame, range(len(poses))):
+        bar = tqdm(total=len(selected), initial=len(selected) - len(todo), desc=f"rendering {sequence}",
+                   unit="frame", dynamic_ncols=True)  # fmt: skip
+    pool = ThreadPoolExecutor(max_workers=max(int(workers), 1))
+    try:
+        for _ in pool.map(render_frame, todo):
             if bar is not None:
                 bar.update()
-    if bar is not None:
-        bar.close()
+    finally:
+        # On Ctrl-C, drop the frames not yet started instead of rendering the whole queue first.
+        pool.shutdown(wait=True, cancel_futures=True)
+        if bar is not None:
+            bar.close()
     return root
 
 
@@ -149,3 +177,77 @@ def _digest(array: np.ndarray) -> str:
     import hashlib
 
     return hashlib.sha256(np.ascontiguousarray(np.round(array, 9)).tobytes()).hexdigest()[:16]
+
+
+def render_kitti(
+    kitti_root: str | Path,
+    sequence: str,
+    out_root: str | Path,
+    start: int | None = None,
+    stop: int | None = None,
+    *,
+    image_size_px: tuple[int, int] = (320, 96),
+    road_smoothing_m: float = 6.0,
+    seed: int = 0,
+    workers: int = 2,
+    progress: bool = False,
+) -> Path:
+    """Render the synthetic street along a KITTI ground truth into a KITTI root at `out_root`; returns it.
+
+    Reads `kitti_root/poses/NN.txt` and `kitti_root/sequences/NN/times.txt` (no images needed). The camera
+    follows the ground truth's horizontal path and heading, level, at a fixed height above a road whose
+    height depends on the position only (`road_trajectory`), so every pass sees a street the same way; the
+    written `poses/NN.txt` is the exact pose of every rendered camera and times.txt is the original one.
+    `start`/`stop` render part of the sequence (frame numbers keep their place). Resumable: a render
+    stamp (`render.json`) records the settings, and frames already on disk are kept when they match;
+    an `out_root` holding a render with other settings is an error, so nothing is overwritten by mistake.
+    """
+    from hippo_nav.datasets.kitti import read_times
+    from hippo_nav.io.poses import read_kitti_poses
+    from hippo_nav.synthetic.trajectories import road_trajectory
+
+    kitti_root = Path(kitti_root)
+    pose_path = kitti_root / "poses" / f"{sequence}.txt"
+    times_path = kitti_root / "sequences" / sequence / "times.txt"
+    if not pose_path.is_file():
+        raise DatasetError(f"{pose_path}: ground truth not found; rendering follows a KITTI pose file")
+    ground_truth = read_kitti_poses(pose_path)
+    times = read_times(times_path)
+    if len(times) != len(ground_truth):
+        raise DatasetError(
+            f"{times_path} lists {len(times)} frames but {pose_path} holds {len(ground_truth)} poses; "
+            "they must describe the same sequence"
+        )
+    lo = 0 if start is None else int(start)
+    hi = len(ground_truth) if stop is None else int(stop)
+    if not 0 <= lo < hi <= len(ground_truth):
+        raise DatasetError(f"frame range [{lo}, {hi}) is empty or outside the {len(ground_truth)} frames")
+    poses = road_trajectory(ground_truth, road_smoothing_m)
+    root = Path(out_root)
+    stamp = {
+        "source_poses_sha": _digest(ground_truth),
+        "image_size_px": [int(v) for v in image_size_px],
+        "road_smoothing_m": float(road_smoothing_m),
+        "seed": int(seed),
+    }
+    existing = rendered_params(root, sequence)
+    if existing is not None and existing != stamp:
+        raise DatasetError(
+            f"{root / 'sequences' / sequence}: holds a render with other settings ({existing}); "
+            "choose another --out or delete that folder"
+        )
+    sequence_dir = root / "sequences" / sequence
+    sequence_dir.mkdir(parents=True, exist_ok=True)
+    (sequence_dir / "render.json").write_text(json.dumps(stamp, sort_keys=True))
+    return render_sequence(
+        poses,
+        root,
+        sequence,
+        image_size_px,
+        seed=seed,
+        timestamps_s=times,
+        frames=np.arange(lo, hi),
+        keep_existing=True,
+        workers=workers,
+        progress=progress,
+    )

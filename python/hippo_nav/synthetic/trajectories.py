@@ -128,6 +128,37 @@ def level_trajectory(world_from_camera: np.ndarray) -> np.ndarray:
     return level
 
 
+def road_heights_m(positions_m: np.ndarray, smoothing_m: float = 6.0) -> np.ndarray:
+    """Height (m, up) of the road under each camera position: a function of horizontal position only.
+
+    KITTI's ground-truth heights of two passes over the same street disagree by 0.3–3 m (GPS/INS drift
+    between passes), so a camera placed at each pass's own height sees the same street from a different
+    height and revisits stop looking alike. Here the height at horizontal position q is the Gaussian-weighted
+    mean (σ = `smoothing_m`) of every pose's height around q: passes over one street get one height, and
+    slopes along a street (a linear profile averages to itself) are kept.
+    """
+    positions = np.asarray(positions_m, dtype=np.float64).reshape(-1, 3)
+    if not (np.isfinite(smoothing_m) and smoothing_m > 0):
+        raise DatasetError(f"smoothing_m must be positive, got {smoothing_m}")
+    horizontal = positions[:, [0, 2]]
+    height = -positions[:, 1]
+    out = np.empty(len(positions))
+    chunk = 512  # rows of the pairwise weight matrix held at once (memory stays ~ chunk × N)
+    for lo in range(0, len(positions), chunk):
+        d2 = ((horizontal[lo : lo + chunk, None, :] - horizontal[None, :, :]) ** 2).sum(-1)
+        weight = np.exp(-0.5 * d2 / smoothing_m**2)
+        out[lo : lo + chunk] = weight @ height / weight.sum(1)
+    return out
+
+
+def road_trajectory(world_from_camera: np.ndarray, smoothing_m: float = 6.0) -> np.ndarray:
+    """The poses levelled (`level_trajectory`) with each camera at the road height of its position
+    (`road_heights_m`): what a car with a fixed camera height sees when it drives the same streets again."""
+    level = level_trajectory(world_from_camera)
+    level[:, 1, 3] = -road_heights_m(level[:, :3, 3], smoothing_m)
+    return level
+
+
 def scale_trajectory(world_from_camera: np.ndarray, factor: float) -> np.ndarray:
     """Scale all translations about the first pose by `factor` (a speed change at the same frame rate)."""
     if not np.isfinite(factor) or factor <= 0:
