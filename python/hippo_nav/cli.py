@@ -7,7 +7,9 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -17,8 +19,9 @@ def build_parser() -> argparse.ArgumentParser:
     run = sub.add_parser(
         "run",
         help="run the SLAM pipeline on a stereo sequence (the built-in synthetic demo loop when no dataset is given)",
-        description="Stereo VO, spatial-memory network, view cells and experience map on every frame; writes "
-        "trajectories (KITTI and TUM), the map, metrics.json, the resolved config and figures into --out.",
+        description="Stereo VO (or another system's odometry, replayed with --odometry), spatial-memory "
+        "network, view cells and experience map on every frame; writes trajectories (KITTI and TUM), the "
+        "map, metrics.json, the resolved config and figures into --out.",
     )
     run.add_argument("--kitti", metavar="ROOT", help="KITTI odometry root (holds sequences/ and poses/)")
     run.add_argument("--sequence", default="00", help="KITTI sequence number (default 00)")
@@ -36,6 +39,25 @@ def build_parser() -> argparse.ArgumentParser:
         help="switch a grid module off (repeatable; adds to the config's lesions)",
     )
     run.add_argument("--seed", type=int, default=None, help="override the config's seed")
+    run.add_argument(
+        "--odometry",
+        metavar="FILE",
+        help="replay another system's trajectory (KITTI or TUM file) instead of the built-in stereo VO",
+    )
+    run.add_argument(
+        "--odometry-format",
+        choices=["kitti", "tum"],
+        default=None,
+        help="format of --odometry (default: guessed, 12 numbers a line = kitti, 8 = tum)",
+    )
+    run.add_argument(
+        "--odometry-align",
+        choices=["exact", "start", "end"],
+        default=None,
+        help="how a KITTI --odometry file's lines map to frames: exact (default) one line per frame of the "
+        "sequence; start: line 0 is frame 0, extra lines at the end ignored; end: the last line is the "
+        "sequence's last frame",
+    )
     run.add_argument("--no-figures", action="store_true", help="skip the figures")
     run.add_argument("--out", default="runs/demo", help="results folder")
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -68,6 +90,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _run(args: argparse.Namespace) -> int:
     from hippo_nav.pipeline import load_config, run
+    from hippo_nav.pipeline.results import bump_rows, format_bump_table
 
     if args.kitti is not None and not Path(args.kitti).is_dir():
         print(
@@ -75,6 +98,7 @@ def _run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 2
+    odometry = _replay(args)
     config = load_config(args.config)
     if args.lesion:
         config = config.with_lesions(*args.lesion)
@@ -91,13 +115,46 @@ def _run(args: argparse.Namespace) -> int:
         stride=args.stride,
         config=config,
         progress=not args.no_progress,
+        odometry=odometry,
     )
     print(json.dumps(_summary(result.metrics), indent=2))
+    # The paper's bump table (μ, σ of every grid bump, fused, place) at the last snapshot frame only;
+    # bump_table.csv in --out holds every snapshot frame.
+    rows = bump_rows(result.record)
+    if rows:
+        last_frame = max(r["frame"] for r in rows)
+        print(f"bump table at frame {last_frame} (radians on the torus):")
+        print(format_bump_table([r for r in rows if r["frame"] == last_frame]))
     if result.interrupted:
         print(f"interrupted after {result.metrics['frames']} frames; results so far written to {args.out}")
         return 130
     print(f"results written to {args.out}")
     return 0
+
+
+def _replay(args: argparse.Namespace) -> Callable[[Any], Any] | None:
+    """The `--odometry` replay as the callable `run()` aligns with the opened dataset, or None.
+
+    The file is read (and every line checked) here, before the dataset is opened or rendered."""
+    from hippo_nav import HippoNavError
+
+    if args.odometry is None:
+        for flag in ("odometry_format", "odometry_align"):
+            if getattr(args, flag) is not None:
+                option = "--" + flag.replace("_", "-")
+                raise HippoNavError(f"{option} needs --odometry FILE (the trajectory to replay)")
+        return None
+    from hippo_nav.vo.replay import replay_odometry
+
+    align = args.odometry_align or "exact"
+    build = replay_odometry(args.odometry, file_format=args.odometry_format, align=align)
+
+    def aligned(dataset):
+        replay = build(dataset)  # raises before any frame runs when the file does not fit the dataset
+        print(replay.note)
+        return replay
+
+    return aligned
 
 
 def _render(args: argparse.Namespace) -> int:

@@ -23,8 +23,9 @@ mod sparse;
 
 pub use error::{MapError, Result};
 pub use experience::{
-    AmbiguityPolicy, CorrectionReport, Corrector, ExperienceMap, FrameInput, FrameOutcome, Link,
-    MapParams, Vertex,
+    AmbiguityPolicy, ClosureMode, ClosureRejection, CorrectionReport, Corrector, ExperienceMap,
+    FrameInput, FrameOutcome, Link, LoopCandidate, LoopMeasurement, MapParams, OnlineCorrection,
+    Vertex,
 };
 pub use g2o::{format_g2o, parse_g2o, read_g2o, write_g2o};
 pub use graph::{ate_rmse_m, isotropic_information, Edge, EdgeKind, PoseGraph};

@@ -2,7 +2,7 @@
 //!
 //! Layout (UTF-8):
 //! ```text
-//! HIPPO_NAV_MAP 1\n
+//! HIPPO_NAV_MAP 2\n
 //! length <payload bytes> fnv1a64 <16 hex digits>\n
 //! <JSON payload: params, vertices, links, current vertex, odometry since it, frame count, lost flag>
 //! ```
@@ -17,7 +17,8 @@ use crate::graph::check_pose;
 use std::path::Path;
 
 pub const MAGIC: &str = "HIPPO_NAV_MAP";
-pub const FORMAT_VERSION: u32 = 1;
+/// 2: links carry their own information; vertices their odometer reading; closure gate state.
+pub const FORMAT_VERSION: u32 = 2;
 
 /// FNV-1a, 64-bit: a simple, well-specified checksum (http://www.isthe.com/chongo/tech/comp/fnv/).
 fn fnv1a64(bytes: &[u8]) -> u64 {
@@ -119,6 +120,7 @@ fn validate(map: &ExperienceMap) -> Result<()> {
             }
         }
         check_pose("stored link transform", &l.from_from_to)?;
+        crate::graph::check_information(0, &l.information)?;
     }
     if let Some(vertex) = map.current {
         if vertex >= len {

@@ -1,10 +1,13 @@
-//! The experience map driven frame by frame: creation rule, loop closure, ambiguity, relocalisation,
-//! save/load.
+//! The experience map driven frame by frame: the map reproduces its odometry, never jumps, closes
+//! loops (measured and RatSLAM-style), rejects closures outside the gate or against the map,
+//! ambiguity, relocalisation, save/load.
 mod common;
 
 use hippo_map::persist::{from_bytes, to_bytes};
 use hippo_map::{
-    AmbiguityPolicy, Corrector, ExperienceMap, FrameInput, MapParams, Pose2, RelaxationParams,
+    isotropic_information, AmbiguityPolicy, ClosureMode, ClosureRejection, Corrector, EdgeKind,
+    ExperienceMap, FrameInput, LoopMeasurement, MapParams, OnlineCorrection, Pose2,
+    RelaxationParams,
 };
 use std::f64::consts::PI;
 
@@ -29,20 +32,25 @@ fn square_circuit(laps: usize, yaw_bias_rad: f64) -> Vec<FrameInput> {
                 Pose2::new(1.0, 0.0, true_step.yaw + yaw_bias_rad)
             },
             elapsed_s: 0.1,
+            loop_closure: None,
         });
         pose = pose.compose(&true_step);
     }
     frames
 }
 
-#[test]
-fn first_lap_creates_vertices_and_second_lap_closes_the_loop() {
-    let mut map = ExperienceMap::new(MapParams {
-        online_relaxation_passes: 0,
+fn ratslam() -> MapParams {
+    MapParams {
+        closure: ClosureMode::RatSlam,
+        online_correction: OnlineCorrection::None,
         ..MapParams::default()
-    })
-    .unwrap();
-    let frames = square_circuit(2, 0.01);
+    }
+}
+
+#[test]
+fn ratslam_first_lap_creates_vertices_and_second_lap_closes_the_loop() {
+    let mut map = ExperienceMap::new(ratslam()).unwrap();
+    let frames = square_circuit(2, 0.003);
     let mut closures = Vec::new();
     for (k, f) in frames.iter().enumerate() {
         let out = map.on_frame(f).unwrap();
@@ -70,8 +78,22 @@ fn first_lap_creates_vertices_and_second_lap_closes_the_loop() {
         "closure at the start of lap 2: {closures:?}"
     );
     assert_eq!(map.loop_link_count(), closures.len());
-    // The drifted map disagrees with the closures until corrected; both correctors reduce χ².
+    // The drifted map disagrees with the closures until corrected. Relaxation (which ignores the links'
+    // uncertainties) shrinks the closures' disagreement; least squares lowers χ² and beats relaxation.
+    let loop_error_m = |m: &ExperienceMap| -> f64 {
+        m.links()
+            .iter()
+            .filter(|l| l.kind == EdgeKind::Loop)
+            .map(|l| {
+                let a = m.vertices()[l.from].world_from_vertex;
+                let b = m.vertices()[l.to].world_from_vertex;
+                let r = l.from_from_to.between(&a.between(&b));
+                r.x.hypot(r.y)
+            })
+            .sum()
+    };
     let before = map.pose_graph().chi2();
+    let before_loop_m = loop_error_m(&map);
     let mut relaxed = map.clone();
     let r = relaxed
         .correct(&Corrector::Relaxation(RelaxationParams {
@@ -84,19 +106,26 @@ fn first_lap_creates_vertices_and_second_lap_closes_the_loop() {
             ExperienceMap::default_least_squares(),
         ))
         .unwrap();
-    assert!(r.final_chi2 < 0.5 * before, "relaxation {r:?}");
+    assert!(
+        loop_error_m(&relaxed) < 0.5 * before_loop_m,
+        "relaxation {r:?}: loop error {} m -> {} m",
+        before_loop_m,
+        loop_error_m(&relaxed)
+    );
+    assert!(ls.final_chi2 < before, "{ls:?}");
     assert!(ls.final_chi2 <= r.final_chi2 && ls.converged, "{ls:?}");
 }
 
 #[test]
-fn staying_put_keeps_the_vertex_and_a_new_view_creates_one() {
-    let mut map = ExperienceMap::new(MapParams::default()).unwrap();
+fn ratslam_staying_put_keeps_the_vertex_and_a_new_view_creates_one() {
+    let mut map = ExperienceMap::new(ratslam()).unwrap();
     let still = FrameInput {
         view_cell_id: 3,
         place_code_rad: [0.0, 0.0],
         heading_code_rad: 0.0,
         odometry_step: Pose2::IDENTITY,
         elapsed_s: 0.1,
+        loop_closure: None,
     };
     assert!(map.on_frame(&still).unwrap().created);
     let again = map.on_frame(&still).unwrap();
@@ -108,22 +137,21 @@ fn staying_put_keeps_the_vertex_and_a_new_view_creates_one() {
         })
         .unwrap();
     assert_eq!((new_view.vertex, new_view.created), (Some(1), true));
-    // Codes wrap: 2π − 0.01 is 0.01 away from 0, so this matches vertex 0's codes.
+    // Codes wrap: 2π − 0.01 is 0.01 away from 0, so this matches vertex 0's codes; but vertex 0 was
+    // made no distance ago, so this is not a place seen again: no jump back onto it, a new vertex.
     let wrapped = FrameInput {
         place_code_rad: [2.0 * PI - 0.01, 0.0],
         ..still
     };
     let back = map.on_frame(&wrapped).unwrap();
-    assert_eq!(back.vertex, Some(0));
-    assert_eq!(
-        back.loop_closure, None,
-        "0 and 1 are already linked: a transition, not a closure"
-    );
+    assert_eq!((back.vertex, back.created), (Some(2), true));
+    assert_eq!(back.loop_closure, None);
+    assert_eq!(back.rejected_closure, Some(ClosureRejection::TooRecent));
 }
 
 #[test]
 fn ambiguous_candidates_are_reported_and_resolved_by_policy() {
-    use hippo_map::{EdgeKind, Link, Vertex};
+    use hippo_map::{Link, Vertex};
     for policy in [
         AmbiguityPolicy::NearestPose,
         AmbiguityPolicy::NearestCode,
@@ -131,8 +159,9 @@ fn ambiguous_candidates_are_reported_and_resolved_by_policy() {
     ] {
         let mut map = ExperienceMap::new(MapParams {
             ambiguity: policy,
-            online_relaxation_passes: 0,
-            ..Default::default()
+            min_loop_separation_m: 0.0,
+            loop_gate_m: 100.0,
+            ..ratslam()
         })
         .unwrap();
         // Vertices 1 and 2 share view cell 9 and nearly the same place code (the code repeats every torus
@@ -142,6 +171,7 @@ fn ambiguous_candidates_are_reported_and_resolved_by_policy() {
             place_code_rad: [code, 0.0],
             heading_code_rad: 0.0,
             world_from_vertex: Pose2::new(x, 0.0, 0.0),
+            odometer_m: 0.0,
         };
         for v in [
             vertex(1, 1.0, 0.0),
@@ -159,6 +189,7 @@ fn ambiguous_candidates_are_reported_and_resolved_by_policy() {
                 from_from_to: from_to,
                 elapsed_s: 1.0,
                 kind: EdgeKind::Odometry,
+                information: isotropic_information(0.1, 0.01),
             })
             .unwrap();
         }
@@ -169,6 +200,7 @@ fn ambiguous_candidates_are_reported_and_resolved_by_policy() {
             heading_code_rad: 0.0,
             odometry_step: Pose2::new(dx, 0.0, 0.0),
             elapsed_s: 0.1,
+            loop_closure: None,
         };
         assert_eq!(map.on_frame(&frame(3, 2.0, 0.0)).unwrap().vertex, Some(3));
         // 5 m ahead the view is cell 9 with code 0.07: within 0.2 rad of both vertex 1 (0.07 away, the
@@ -188,7 +220,7 @@ fn ambiguous_candidates_are_reported_and_resolved_by_policy() {
 
 #[test]
 fn relocalization_resumes_on_a_matching_vertex_without_adding_links() {
-    let mut map = ExperienceMap::new(MapParams::default()).unwrap();
+    let mut map = ExperienceMap::new(ratslam()).unwrap();
     for f in square_circuit(1, 0.0) {
         map.on_frame(&f).unwrap();
     }
@@ -248,8 +280,8 @@ fn corrupted_truncated_and_foreign_files_are_rejected_with_a_reason() {
     let newer =
         String::from_utf8(bytes.clone())
             .unwrap()
-            .replacen("HIPPO_NAV_MAP 1", "HIPPO_NAV_MAP 2", 1);
-    assert!(message(newer.as_bytes()).contains("version 2"));
+            .replacen("HIPPO_NAV_MAP 2", "HIPPO_NAV_MAP 3", 1);
+    assert!(message(newer.as_bytes()).contains("version 3"));
     // A checksummed payload that is valid JSON but not a consistent map (a link to a missing vertex).
     let text = String::from_utf8(bytes).unwrap();
     let payload = &text[text.find('{').unwrap()..];
@@ -263,7 +295,7 @@ fn corrupted_truncated_and_foreign_files_are_rejected_with_a_reason() {
         let h = good.find('{').unwrap();
         let _ = h;
         format!(
-            "HIPPO_NAV_MAP 1\nlength {} fnv1a64 {:016x}\n{p}",
+            "HIPPO_NAV_MAP 2\nlength {} fnv1a64 {:016x}\n{p}",
             p.len(),
             fnv(p.as_bytes())
         )
@@ -278,4 +310,254 @@ fn fnv(bytes: &[u8]) -> u64 {
         hash = hash.wrapping_mul(0x0000_0100_0000_01b3);
     }
     hash
+}
+
+/// Deterministic pseudo-random numbers in [-1, 1) (no dependency needed for a test).
+fn noise(k: u64) -> f64 {
+    let mut x = k.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ 0xD1B5_4A32_D192_ED03;
+    x ^= x >> 31;
+    x = x.wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    x ^= x >> 29;
+    (x >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+}
+
+#[test]
+fn without_closures_the_map_reproduces_its_odometry_exactly() {
+    for closure in [ClosureMode::Geometric, ClosureMode::RatSlam] {
+        let mut map = ExperienceMap::new(MapParams {
+            closure,
+            ..MapParams::default()
+        })
+        .unwrap();
+        let mut odometry = Pose2::IDENTITY;
+        for k in 0..600u64 {
+            let step = if k == 0 {
+                Pose2::IDENTITY
+            } else {
+                Pose2::new(
+                    1.0 + 0.5 * noise(3 * k),
+                    0.05 * noise(3 * k + 1),
+                    0.1 * noise(3 * k + 2),
+                )
+            };
+            odometry = odometry.compose(&step);
+            // Codes jitter and sometimes come back near earlier values (a car turning on the spot, a
+            // view seen again a few frames later): none of it may move the agent.
+            let out = map
+                .on_frame(&FrameInput {
+                    view_cell_id: k % 7,
+                    place_code_rad: [0.3 * noise(5 * k), 0.3 * noise(5 * k + 1)],
+                    heading_code_rad: 0.5 * noise(5 * k + 2),
+                    odometry_step: step,
+                    elapsed_s: 0.1,
+                    loop_closure: None,
+                })
+                .unwrap();
+            let agent = out.world_from_agent.unwrap();
+            assert!(
+                (agent.x - odometry.x).abs() < 1e-9
+                    && (agent.y - odometry.y).abs() < 1e-9
+                    && wrap(agent.yaw - odometry.yaw).abs() < 1e-9,
+                "{closure:?} frame {k}: map {agent:?} odometry {odometry:?}"
+            );
+            // The agent's offset from its vertex is the odometry since that vertex.
+            let vertex = map.vertices()[out.vertex.unwrap()].world_from_vertex;
+            let offset = vertex.between(&agent);
+            let reported = out.vertex_from_agent.unwrap();
+            assert!((offset.x - reported.x).abs() < 1e-9 && (offset.y - reported.y).abs() < 1e-9);
+        }
+        assert_eq!(map.loop_link_count(), 0, "{closure:?}");
+        assert!(map.links().iter().all(|l| l.kind == EdgeKind::Odometry));
+    }
+}
+
+fn wrap(a: f64) -> f64 {
+    hippo_map::wrap_angle(a)
+}
+
+/// An out-and-back drive: 60 m east along y = 0, a U-turn, 60 m back west 2.5 m further left. The
+/// odometry over-reads distance by 2 % and turns 0.05° per frame too far left.
+fn out_and_back() -> (Vec<Pose2>, Vec<Pose2>) {
+    let mut truth = vec![Pose2::IDENTITY];
+    for k in 1..140 {
+        let step = if (60..80).contains(&k) {
+            // The U-turn: 20 frames of 9° on a 1.3 m radius.
+            Pose2::new(0.2, 0.0, PI / 20.0)
+        } else {
+            Pose2::new(1.0, 0.0, 0.0)
+        };
+        truth.push(truth[k - 1].compose(&step));
+    }
+    let mut odometry = vec![Pose2::IDENTITY];
+    for k in 1..truth.len() {
+        let step = truth[k - 1].between(&truth[k]);
+        let drifted = Pose2::new(
+            1.02 * step.x,
+            1.02 * step.y,
+            step.yaw + 0.05f64.to_radians(),
+        );
+        odometry.push(odometry[k - 1].compose(&drifted));
+    }
+    (truth, odometry)
+}
+
+fn frame_of(k: usize, truth: &[Pose2], odometry: &[Pose2]) -> FrameInput {
+    FrameInput {
+        view_cell_id: k as u64,
+        place_code_rad: [truth[k].x * 2.0 * PI / 100.0, truth[k].y * 2.0 * PI / 100.0],
+        heading_code_rad: truth[k].yaw,
+        odometry_step: if k == 0 {
+            Pose2::IDENTITY
+        } else {
+            odometry[k - 1].between(&odometry[k])
+        },
+        elapsed_s: 0.1,
+        loop_closure: None,
+    }
+}
+
+#[test]
+fn a_measured_closure_recovers_its_offset_and_corrects_the_map() {
+    let (truth, odometry) = out_and_back();
+    let mut map = ExperienceMap::new(MapParams::default()).unwrap();
+    let mut frame_of_vertex: Vec<usize> = Vec::new();
+    let mut closures = Vec::new();
+    for k in 0..truth.len() {
+        let mut input = frame_of(k, &truth, &odometry);
+        // Back past the U-turn (more than min_loop_separation_m on), every 3 frames measure the pose of
+        // the outbound vertex nearest in truth.
+        if k >= 105 && k % 3 == 0 {
+            let (target, _) = frame_of_vertex
+                .iter()
+                .enumerate()
+                .filter(|&(_, &f)| f < 50)
+                .map(|(v, &f)| {
+                    let d: Pose2 = truth[f].between(&truth[k]);
+                    (v, d.x.hypot(d.y))
+                })
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .unwrap();
+            let agent_from_target = truth[k].between(&truth[frame_of_vertex[target]]);
+            input.loop_closure = Some(LoopMeasurement {
+                target,
+                agent_from_target,
+                information: isotropic_information(0.05, 0.005),
+            });
+        }
+        let out = map.on_frame(&input).unwrap();
+        if out.created {
+            frame_of_vertex.push(k);
+        }
+        if let Some(c) = out.loop_closure {
+            closures.push((k, c));
+        }
+        assert_eq!(out.rejected_closure, None, "frame {k}");
+    }
+    assert!(closures.len() >= 8, "{closures:?}");
+    // Every closure link holds its measurement in the corrected map (the offset is recovered) …
+    for &(k, (from, to)) in &closures {
+        let a = map.vertices()[from].world_from_vertex;
+        let b = map.vertices()[to].world_from_vertex;
+        let measured = truth[k].between(&truth[frame_of_vertex[to]]);
+        let mapped = a.between(&b);
+        assert!(
+            (mapped.x - measured.x).abs() < 0.1 && (mapped.y - measured.y).abs() < 0.1,
+            "frame {k}: map says {mapped:?}, measured {measured:?}"
+        );
+    }
+    // … and the map's vertices sit closer to the truth than the odometry's (closures fix how the legs lie
+    // relative to each other, not the outbound leg's own 2 % scale error).
+    let error = |poses: &dyn Fn(usize) -> Pose2| -> f64 {
+        let n = frame_of_vertex.len();
+        let sum: f64 = (0..n)
+            .map(|v| {
+                let p = poses(v);
+                let t = truth[frame_of_vertex[v]];
+                (p.x - t.x).hypot(p.y - t.y).powi(2)
+            })
+            .sum();
+        (sum / n as f64).sqrt()
+    };
+    let map_error = error(&|v| map.vertices()[v].world_from_vertex);
+    let odometry_error = error(&|v| odometry[frame_of_vertex[v]]);
+    assert!(
+        map_error < 0.5 * odometry_error,
+        "map {map_error} m vs odometry {odometry_error} m"
+    );
+}
+
+#[test]
+fn closures_outside_the_gate_or_against_the_map_are_rejected() {
+    let (truth, odometry) = out_and_back();
+    let mut map = ExperienceMap::new(MapParams::default()).unwrap();
+    let mut frame_of_vertex: Vec<usize> = Vec::new();
+    for k in 0..100 {
+        let out = map.on_frame(&frame_of(k, &truth, &odometry)).unwrap();
+        if out.created {
+            frame_of_vertex.push(k);
+        }
+    }
+    let vertices = map.vertices().len();
+    let poses: Vec<Pose2> = map.vertices().iter().map(|v| v.world_from_vertex).collect();
+    // A look-alike place 80 m away from where the odometry puts the agent: outside the gate.
+    let far = FrameInput {
+        loop_closure: Some(LoopMeasurement {
+            target: 1,
+            agent_from_target: Pose2::new(80.0, 0.0, 0.0),
+            information: isotropic_information(0.05, 0.005),
+        }),
+        ..frame_of(100, &truth, &odometry)
+    };
+    let out = map.on_frame(&far).unwrap();
+    assert_eq!(out.rejected_closure, Some(ClosureRejection::OutsideGate));
+    assert_eq!((out.loop_closure, map.loop_link_count()), (None, 0));
+    // A vertex made a few metres back is not a place seen again.
+    let recent = FrameInput {
+        loop_closure: Some(LoopMeasurement {
+            target: map.vertices().len() - 1,
+            agent_from_target: Pose2::new(-2.0, 0.0, 0.0),
+            information: isotropic_information(0.05, 0.005),
+        }),
+        ..frame_of(101, &truth, &odometry)
+    };
+    assert_eq!(
+        map.on_frame(&recent).unwrap().rejected_closure,
+        Some(ClosureRejection::TooRecent)
+    );
+    // A true closure, then one a few frames later that contradicts it by 6 m: inside the gate, but
+    // the short odometry between them cannot absorb 6 m, so the corrected map refuses the second.
+    let true_closure = |k: usize, target: usize, bias: Pose2| FrameInput {
+        loop_closure: Some(LoopMeasurement {
+            target,
+            agent_from_target: truth[k]
+                .between(&truth[frame_of_vertex[target]])
+                .compose(&bias),
+            information: isotropic_information(0.05, 0.005),
+        }),
+        ..frame_of(k, &truth, &odometry)
+    };
+    let first = map
+        .on_frame(&true_closure(102, 4, Pose2::IDENTITY))
+        .unwrap();
+    assert!(first.loop_closure.is_some(), "{first:?}");
+    let before: Vec<Pose2> = map.vertices().iter().map(|v| v.world_from_vertex).collect();
+    let links = map.links().len();
+    let wrong = map
+        .on_frame(&true_closure(104, 3, Pose2::new(0.0, 6.0, 0.0)))
+        .unwrap();
+    assert_eq!(wrong.rejected_closure, Some(ClosureRejection::Inconsistent));
+    assert_eq!(map.loop_link_count(), 1);
+    assert_eq!(
+        map.links().len(),
+        links + 1,
+        "only the odometry link to the new vertex stays"
+    );
+    for (v, p) in before.iter().enumerate() {
+        assert_eq!(
+            map.vertices()[v].world_from_vertex,
+            *p,
+            "vertex {v} restored"
+        );
+    }
+    assert_eq!(vertices, poses.len());
 }

@@ -5,9 +5,10 @@
 //! checked for shape and finiteness. The interpreter is released while a corrector runs.
 use crate::errors::{to_py_err, HippoNavError};
 use hippo_map::{
-    optimize, parse_g2o, read_g2o, relax, write_g2o, Corrector, Edge, EdgeKind, ExperienceMap,
-    FrameInput, Initialization, Link, MapParams, Pose2, PoseGraph, RelaxationParams, RobustLoss,
-    SolverParams, Vertex,
+    isotropic_information, optimize, parse_g2o, read_g2o, relax, write_g2o, ClosureRejection,
+    Corrector, Edge, EdgeKind, ExperienceMap, FrameInput, FrameOutcome, Initialization, Link,
+    LoopMeasurement, MapParams, Pose2, PoseGraph, RelaxationParams, RobustLoss, SolverParams,
+    Vertex,
 };
 use numpy::{
     IntoPyArray, PyArray2, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArrayMethods,
@@ -104,6 +105,88 @@ fn report_dict<'py>(py: Python<'py>, items: &[(&str, Py<PyAny>)]) -> PyResult<Bo
         d.set_item(*k, v)?;
     }
     Ok(d)
+}
+
+/// A (3, 3) information matrix from any numpy layout (checked for shape and finiteness here, for
+/// symmetry and positive definiteness by the map).
+fn information_of(a: &PyReadonlyArrayDyn<'_, f64>) -> PyResult<[[f64; 3]; 3]> {
+    if a.shape() != [3, 3] {
+        return Err(HippoNavError::new_err(format!(
+            "`information` has shape {:?}, expected (3, 3) (inverse covariance of x, y, yaw)",
+            a.shape()
+        )));
+    }
+    let v: Vec<f64> = a.as_array().iter().copied().collect();
+    if v.iter().any(|x| !x.is_finite()) {
+        return Err(HippoNavError::new_err(
+            "`information` holds a NaN or infinity",
+        ));
+    }
+    Ok([[v[0], v[1], v[2]], [v[3], v[4], v[5]], [v[6], v[7], v[8]]])
+}
+
+/// What one frame did to the experience map (see `hippo_map::FrameOutcome`).
+#[pyclass(name = "MapFrameOutcome", module = "hippo_nav._core", frozen)]
+pub struct PyFrameOutcome {
+    inner: FrameOutcome,
+}
+
+fn pose_tuple(p: Option<Pose2>) -> Option<(f64, f64, f64)> {
+    p.map(|p| (p.x, p.y, p.yaw))
+}
+
+#[pymethods]
+impl PyFrameOutcome {
+    /// The current vertex after the frame; None while lost.
+    #[getter]
+    fn vertex(&self) -> Option<usize> {
+        self.inner.vertex
+    }
+    /// Whether the frame made a vertex.
+    #[getter]
+    fn created(&self) -> bool {
+        self.inner.created
+    }
+    /// `(from, to)` of the loop link added this frame, or None.
+    #[getter]
+    fn loop_closure(&self) -> Option<(usize, usize)> {
+        self.inner.loop_closure
+    }
+    /// Why this frame's candidate closure was not added: "too_recent", "outside_gate",
+    /// "inconsistent", or None.
+    #[getter]
+    fn rejected_closure(&self) -> Option<&'static str> {
+        self.inner.rejected_closure.map(|r| match r {
+            ClosureRejection::TooRecent => "too_recent",
+            ClosureRejection::OutsideGate => "outside_gate",
+            ClosureRejection::Inconsistent => "inconsistent",
+        })
+    }
+    /// Every matching vertex when more than one matched (RatSLAM mode).
+    #[getter]
+    fn ambiguous_candidates(&self) -> Vec<usize> {
+        self.inner.ambiguous_candidates.clone()
+    }
+    #[getter]
+    fn relocalized(&self) -> bool {
+        self.inner.relocalized
+    }
+    /// The agent's pose `(x, y, yaw)` in the map frame; None while lost.
+    #[getter]
+    fn world_from_agent(&self) -> Option<(f64, f64, f64)> {
+        pose_tuple(self.inner.world_from_agent)
+    }
+    /// The agent's pose relative to its vertex (the odometry since that vertex); None while lost.
+    #[getter]
+    fn vertex_from_agent(&self) -> Option<(f64, f64, f64)> {
+        pose_tuple(self.inner.vertex_from_agent)
+    }
+    fn __eq__(&self, other: &Self) -> bool {
+        self.inner == other.inner
+    }
+    fn __repr__(&self) -> String {
+        format!("{:?}", self.inner)
+    }
 }
 
 /// A planar pose graph (g2o `EdgeSE2` cost).
@@ -355,45 +438,85 @@ impl PyExperienceMap {
     }
 
     /// One camera frame. `odometry_step` is `previous_frame_from_frame` as `(dx_forward_m, dy_left_m,
-    /// dyaw_rad)`. Returns a dict: vertex, created, loop_closure, ambiguous_candidates, relocalized,
-    /// world_from_agent.
-    fn on_frame<'py>(
+    /// dyaw_rad)`. `loop_closure` (geometric mode) is `(target_vertex, agent_from_target (x, y, yaw),
+    /// information (3, 3))`, a closure measured against the frame that made the target vertex.
+    #[pyo3(signature = (view_cell_id, place_code_rad, heading_code_rad, odometry_step, elapsed_s, loop_closure=None))]
+    fn on_frame(
         &mut self,
-        py: Python<'py>,
         view_cell_id: u64,
         place_code_rad: (f64, f64),
         heading_code_rad: f64,
         odometry_step: (f64, f64, f64),
         elapsed_s: f64,
-    ) -> PyResult<Bound<'py, PyDict>> {
+        loop_closure: Option<(usize, (f64, f64, f64), PyReadonlyArrayDyn<'_, f64>)>,
+    ) -> PyResult<PyFrameOutcome> {
+        let loop_closure = match loop_closure {
+            None => None,
+            Some((target, agent_from_target, information)) => Some(LoopMeasurement {
+                target,
+                agent_from_target: pose_of("agent_from_target", agent_from_target)?,
+                information: information_of(&information)?,
+            }),
+        };
         let input = FrameInput {
             view_cell_id,
             place_code_rad: [place_code_rad.0, place_code_rad.1],
             heading_code_rad,
             odometry_step: pose_of("odometry_step", odometry_step)?,
             elapsed_s,
+            loop_closure,
         };
-        let out = self.map.on_frame(&input).map_err(to_py_err)?;
-        let d = PyDict::new(py);
-        d.set_item("vertex", out.vertex)?;
-        d.set_item("created", out.created)?;
-        d.set_item("loop_closure", out.loop_closure)?;
-        d.set_item("ambiguous_candidates", out.ambiguous_candidates)?;
-        d.set_item("relocalized", out.relocalized)?;
-        d.set_item(
-            "world_from_agent",
-            out.world_from_agent.map(|p| (p.x, p.y, p.yaw)),
-        )?;
-        Ok(d)
+        let inner = self.map.on_frame(&input).map_err(to_py_err)?;
+        Ok(PyFrameOutcome { inner })
     }
 
-    /// Add a vertex directly; returns its index.
+    /// Vertices among `vertices` that a closure at the next frame may join (far enough back along the
+    /// path, inside the loop gate around where `odometry_step` takes the agent), nearest first, as
+    /// `(vertex, predicted_agent_from_vertex (x, y, yaw), distance_m)`.
+    fn loop_candidates(
+        &self,
+        vertices: Vec<usize>,
+        odometry_step: (f64, f64, f64),
+    ) -> PyResult<Vec<(usize, (f64, f64, f64), f64)>> {
+        let step = pose_of("odometry_step", odometry_step)?;
+        Ok(self
+            .map
+            .loop_candidates(&vertices, &step)
+            .map_err(to_py_err)?
+            .into_iter()
+            .map(|c| {
+                let p = c.predicted_agent_from_vertex;
+                (c.vertex, (p.x, p.y, p.yaw), c.distance_m)
+            })
+            .collect())
+    }
+
+    /// Vertices within `radius_m` of where `odometry_step` takes the agent, nearest first.
+    fn vertices_near(&self, radius_m: f64, odometry_step: (f64, f64, f64)) -> PyResult<Vec<usize>> {
+        if !(radius_m.is_finite() && radius_m >= 0.0) {
+            return Err(HippoNavError::new_err(format!(
+                "radius_m must be finite and >= 0, got {radius_m}"
+            )));
+        }
+        let step = pose_of("odometry_step", odometry_step)?;
+        self.map.vertices_near(radius_m, &step).map_err(to_py_err)
+    }
+
+    /// Distance travelled so far along the odometry (m).
+    #[getter]
+    fn odometer_m(&self) -> f64 {
+        self.map.odometer_m()
+    }
+
+    /// Add a vertex directly; returns its index. `odometer_m`: distance travelled when it was made.
+    #[pyo3(signature = (view_cell_id, place_code_rad, heading_code_rad, world_from_vertex, odometer_m=0.0))]
     fn add_vertex(
         &mut self,
         view_cell_id: u64,
         place_code_rad: (f64, f64),
         heading_code_rad: f64,
         world_from_vertex: (f64, f64, f64),
+        odometer_m: f64,
     ) -> PyResult<usize> {
         self.map
             .add_vertex(Vertex {
@@ -401,12 +524,14 @@ impl PyExperienceMap {
                 place_code_rad: [place_code_rad.0, place_code_rad.1],
                 heading_code_rad,
                 world_from_vertex: pose_of("world_from_vertex", world_from_vertex)?,
+                odometer_m,
             })
             .map_err(to_py_err)
     }
 
-    /// Add a link `from_from_to` between existing vertices; returns its index.
-    #[pyo3(signature = (from_vertex, to_vertex, from_from_to, elapsed_s, is_loop=false))]
+    /// Add a link `from_from_to` between existing vertices; returns its index. `information` (3, 3):
+    /// None gives an odometry link the params' odometry noise for its length.
+    #[pyo3(signature = (from_vertex, to_vertex, from_from_to, elapsed_s, is_loop=false, information=None))]
     fn add_link(
         &mut self,
         from_vertex: usize,
@@ -414,18 +539,29 @@ impl PyExperienceMap {
         from_from_to: (f64, f64, f64),
         elapsed_s: f64,
         is_loop: bool,
+        information: Option<PyReadonlyArrayDyn<'_, f64>>,
     ) -> PyResult<usize> {
+        let from_from_to = pose_of("from_from_to", from_from_to)?;
+        let information = match information {
+            Some(a) => information_of(&a)?,
+            None if is_loop => isotropic_information(
+                self.map.params().ratslam_loop_sigma_xy_m,
+                self.map.params().ratslam_loop_sigma_yaw_rad,
+            ),
+            None => self.map.params().odometry_information(&from_from_to),
+        };
         self.map
             .add_link(Link {
                 from: from_vertex,
                 to: to_vertex,
-                from_from_to: pose_of("from_from_to", from_from_to)?,
+                from_from_to,
                 elapsed_s,
                 kind: if is_loop {
                     EdgeKind::Loop
                 } else {
                     EdgeKind::Odometry
                 },
+                information,
             })
             .map_err(to_py_err)
     }
@@ -444,13 +580,26 @@ impl PyExperienceMap {
         self.map.world_from_agent().map(|p| (p.x, p.y, p.yaw))
     }
 
+    /// Pose `(x, y, yaw)` of one vertex in the map frame.
+    fn vertex_pose(&self, vertex: usize) -> PyResult<(f64, f64, f64)> {
+        let v = self.map.vertices().get(vertex).ok_or_else(|| {
+            HippoNavError::new_err(format!(
+                "vertex {vertex} does not exist (the map holds {})",
+                self.map.vertices().len()
+            ))
+        })?;
+        let p = v.world_from_vertex;
+        Ok((p.x, p.y, p.yaw))
+    }
+
     /// `(N, 3)` vertex poses `(x_m, y_m, yaw_rad)` in the map frame.
     fn poses<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
         poses_array(py, self.map.vertices().iter().map(|v| v.world_from_vertex))
     }
 
     /// The whole graph as numpy arrays (dict): poses (N,3), view_cell_ids (N,), place_codes_rad (N,2),
-    /// heading_codes_rad (N,), links (E,2), link_transforms (E,3), link_elapsed_s (E,), link_is_loop (E,).
+    /// heading_codes_rad (N,), vertex_odometer_m (N,), links (E,2), link_transforms (E,3),
+    /// link_elapsed_s (E,), link_information (E,3,3), link_is_loop (E,).
     fn export<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
         let v = self.map.vertices();
         let l = self.map.links();
@@ -491,6 +640,18 @@ impl PyExperienceMap {
                 .collect::<Vec<_>>()
                 .into_pyarray(py),
         )?;
+        let info: Vec<f64> = l.iter().flat_map(|x| x.information.concat()).collect();
+        d.set_item(
+            "link_information",
+            info.into_pyarray(py).reshape([l.len(), 3, 3])?,
+        )?;
+        d.set_item(
+            "vertex_odometer_m",
+            v.iter()
+                .map(|x| x.odometer_m)
+                .collect::<Vec<_>>()
+                .into_pyarray(py),
+        )?;
         d.set_item(
             "link_is_loop",
             l.iter()
@@ -501,7 +662,7 @@ impl PyExperienceMap {
         Ok(d)
     }
 
-    /// The map as a `PoseGraph` (link information from the params' sigmas; vertex 0 fixed).
+    /// The map as a `PoseGraph` (every link with its information; vertex 0 fixed).
     fn pose_graph(&self) -> PyPoseGraph {
         PyPoseGraph {
             graph: self.map.pose_graph(),
@@ -577,5 +738,6 @@ impl PyExperienceMap {
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyPoseGraph>()?;
     m.add_class::<PyExperienceMap>()?;
+    m.add_class::<PyFrameOutcome>()?;
     Ok(())
 }

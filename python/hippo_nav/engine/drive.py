@@ -14,6 +14,7 @@ import numpy as np
 
 from hippo_nav._core import HippoNavError
 from hippo_nav.engine.network import SpatialMemory
+from hippo_nav.geometry import planar_from_pose
 
 
 @dataclass(frozen=True)
@@ -32,11 +33,8 @@ def planar_track(world_from_camera: np.ndarray) -> tuple[np.ndarray, np.ndarray]
         raise HippoNavError(f"world_from_camera must be (N >= 2, 4, 4), got {poses.shape}")
     if not np.isfinite(poses).all():
         raise HippoNavError("world_from_camera contains NaN or infinite values")
-    rel = np.linalg.inv(poses[0]) @ poses
-    positions = np.stack([rel[:, 2, 3], -rel[:, 0, 3]], axis=1)
-    # Camera z axis in the first camera's frame → heading: forward = z, left = −x.
-    yaw = np.arctan2(-rel[:, 0, 2], rel[:, 2, 2])
-    return positions, yaw
+    planar = planar_from_pose(np.linalg.inv(poses[0]) @ poses)
+    return planar[:, :2], planar[:, 2]
 
 
 def planar_odometry(world_from_camera: np.ndarray, timestamps_s: np.ndarray) -> PlanarOdometry:

@@ -19,10 +19,12 @@ from hippo_nav.pipeline.config import (
     load_config,
     write_config,
 )
-from hippo_nav.pipeline.pipeline import Pipeline, RunRecord, RunResult, open_input, planar_step, run
+from hippo_nav.pipeline.pipeline import Pipeline, open_input, planar_step, run
+from hippo_nav.pipeline.records import FrameRecord, RunRecord, RunResult
 
 __all__ = [
     "CorrectionConfig",
+    "FrameRecord",
     "InjectionConfig",
     "LesionConfig",
     "MotionLimits",

@@ -14,7 +14,8 @@ Sections:
 - `vo`: keyword parameters of the stereo VO (`hippo_nav.vo`); empty = its own defaults.
 - `views`: view-cell parameters (`hippo_nav.views`); empty = their own defaults.
 - `injection`: how familiar views pull the network back (SPEC §7, see `InjectionConfig`).
-- `map`: experience-map creation and online correction (`hippo_nav.map.MapParams`).
+- `map`: experience-map creation, loop-closure mode and gates, online correction (`hippo_nav.map.MapParams`).
+- `closure`: geometric loop closure: stereo keyframes and PnP verification (`hippo_nav.closure.ClosureConfig`).
 - `correction`: the final correction run after the last frame (`CorrectionConfig`).
 - `limits`: the motion the engine is given at most; larger VO outputs are clamped (`MotionLimits`).
 - `output`: what is written besides trajectories and metrics (`OutputConfig`).
@@ -29,6 +30,7 @@ from typing import Any, Literal
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from hippo_nav._core import HippoNavError
+from hippo_nav.closure import ClosureConfig
 from hippo_nav.engine import EngineConfig
 from hippo_nav.map import MapParams
 
@@ -112,6 +114,7 @@ class PipelineConfig(_Section):
     views: dict[str, Any] = Field(default_factory=dict)
     injection: InjectionConfig = Field(default_factory=InjectionConfig)
     map: MapParams = Field(default_factory=MapParams)
+    closure: ClosureConfig = Field(default_factory=ClosureConfig)
     correction: CorrectionConfig = Field(default_factory=CorrectionConfig)
     limits: MotionLimits = Field(default_factory=MotionLimits)
     output: OutputConfig = Field(default_factory=OutputConfig)

@@ -1,22 +1,30 @@
-"""The whole system, one stereo frame at a time: VO → spatial memory ← view cells → experience map.
+"""The whole system, one stereo frame at a time: odometry → spatial memory ← view cells → experience map.
 
 `Pipeline(dataset, config).run(out_dir)` is the package's main job (the `hippo-nav run` command). Per
-frame, in this order:
+frame, in this order (docs/pipeline.md):
 
-1. Stereo VO: the SE(3) step `camera_prev_from_camera_cur`. Its planar part (SPEC §9: camera x right,
-   y down, z forward) is the map's odometry step `(forward, left, yaw) = (dz, −dx, yaw about −y)`; the
-   engine is given `yaw_rate = yaw / dt` and `speed = ±|(dz, dx)| / dt` (negative when reversing), with
-   `dt` from the frame timestamps. A VO failure (an exception or a non-finite step) is flagged and the
-   previous step is reused (constant-velocity prior); motion beyond `config.limits` is clamped and flagged.
-2. Local view cells: a template of the left image is matched; a new cell stores the network's
-   `view_patterns()` after this frame's step (so the cell remembers the state where the view was first
-   seen); a familiar cell injects its stored patterns (`InjectionConfig`, strength decaying while the
-   same cell stays active).
+1. Odometry: the SE(3) step `camera_prev_from_camera_cur` of the stereo VO (or of another system's
+   trajectory, `hippo_nav.vo.replay`), chained into `vo_world_from_camera`. The map's odometry step is
+   the SE(2) motion between the planar parts of consecutive chained poses (`hippo_nav.geometry`), so
+   composing the map's steps reproduces the odometry's planar trajectory exactly. The engine is given
+   `yaw_rate = Δyaw / dt` and `speed = ±|Δxy| / dt` (negative when reversing), `dt` from the frame
+   timestamps. An odometry failure (an exception or a non-finite step) is flagged and the previous step
+   is reused (constant-velocity prior); motion beyond `config.limits` is clamped and flagged.
+2. Local view cells: a template of the left image is matched; a familiar cell injects its stored
+   patterns (`InjectionConfig`, strength decaying while the same cell stays active); a new cell stores
+   the network's patterns after this frame's step (where the view was first seen).
 3. Spatial memory (HD ring, three grid modules, place torus) integrates the motion, with the injection.
-4. Experience map: `on_frame(view cell, place code (θx, θy), heading code ψ, planar step, dt)`, which
-   creates vertices, links, loop closures and runs the online relaxation. The online estimate is the
-   map's agent pose; each frame also keeps its offset from its vertex, so after the final correction
+4. Loop closure (the map's geometric mode): when the view is familiar, the map lists the vertices a
+   closure may join (far enough back along the path, inside the loop gate around the odometry's
+   prediction: evidence the injection has not touched); the current stereo frame measures the pose of
+   each candidate's keyframe (`hippo_nav.closure`); the first verified one goes to the map.
+5. Experience map: `on_frame(view cell, place code, heading code, planar step, dt, closure)` creates
+   vertices (pure odometry links) and loop links, and corrects the map online. A new vertex keeps the
+   frame's stereo keyframe. Each frame keeps its offset from its vertex, so after the final correction
    every frame gets a corrected pose (vertex pose ∘ offset).
+
+The end of a run (`_finish`): the final correction, the trajectories (planar estimates lifted to 3-D
+with the odometry's height, pitch and roll), and `results.evaluate` / `results.write_results`.
 
 Nothing depends on wall-clock time (timings are only measured), and OpenCV's RNG is seeded from
 `config.seed`, so a run is deterministic for a given config and input. Ctrl-C (KeyboardInterrupt) stops
@@ -27,93 +35,28 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from hippo_nav._core import HippoNavError
+from hippo_nav.closure import Keyframe, KeyframeExtractor, LoopMeasurer
 from hippo_nav.engine import SpatialMemory, SpatialReadout, ViewPatterns
+from hippo_nav.geometry import lift_planar, planar_from_pose, se2_between, se2_compose
 from hippo_nav.io import DatasetError
-from hippo_nav.map import new_experience_map
+from hippo_nav.map import ClosureMode, new_experience_map
 from hippo_nav.pipeline.config import PipelineConfig
 from hippo_nav.pipeline.frontend import make_odometry, make_view_cells
-from hippo_nav.vo import planar_step, planar_velocities
+from hippo_nav.pipeline.records import STAGES, FrameRecord, RunRecord, RunResult
+from hippo_nav.vo import planar_step
 
 log = logging.getLogger("hippo_nav.pipeline")
-
-STAGES = ("load", "vo", "views", "engine", "map", "record")
-"""Per-frame stages whose wall time is measured (seconds per frame in `RunRecord.stage_s`)."""
 
 NO_VIEW_ID = 2**63 - 1
 """View-cell id given to the map before any informative view has been seen."""
 
-
-def se2_compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a ⊕ b for (…, 3) arrays of (x, y, yaw)."""
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    x = a[..., 0] + c * b[..., 0] - s * b[..., 1]
-    y = a[..., 1] + s * b[..., 0] + c * b[..., 1]
-    return np.stack([x, y, a[..., 2] + b[..., 2]], axis=-1)
-
-
-def se2_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """a⁻¹ ⊕ b for (…, 3) arrays of (x, y, yaw)."""
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    dx, dy = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]
-    yaw = np.remainder(b[..., 2] - a[..., 2] + np.pi, 2 * np.pi) - np.pi
-    return np.stack([c * dx + s * dy, -s * dx + c * dy, yaw], axis=-1)
-
-
-@dataclass
-class RunRecord:
-    """Everything recorded per processed frame (lists grow frame by frame; `arrays()` stacks them)."""
-
-    frame_index: list[int] = field(default_factory=list)
-    timestamp_s: list[float] = field(default_factory=list)
-    vo_world_from_camera: list[np.ndarray] = field(default_factory=list)
-    vo_status: list[str] = field(default_factory=list)
-    motion_flag: list[str] = field(default_factory=list)
-    yaw_rate_rad_s: list[float] = field(default_factory=list)
-    speed_m_s: list[float] = field(default_factory=list)
-    view_cell: list[int] = field(default_factory=list)
-    view_status: list[str] = field(default_factory=list)
-    view_difference: list[float] = field(default_factory=list)
-    injection_strength: list[float] = field(default_factory=list)
-    heading_rad: list[float] = field(default_factory=list)
-    place_code_rad: list[tuple[float, float]] = field(default_factory=list)
-    place_position_m: list[tuple[float, float]] = field(default_factory=list)
-    vertex: list[int] = field(default_factory=list)
-    vertex_created: list[bool] = field(default_factory=list)
-    loop_closure: list[tuple[int, int] | None] = field(default_factory=list)
-    online_pose: list[np.ndarray] = field(default_factory=list)
-    vertex_from_agent: list[np.ndarray] = field(default_factory=list)
-    stage_s: dict[str, list[float]] = field(default_factory=lambda: {s: [] for s in STAGES})
-    # Sub-sampled unit activities for the firing-rate maps: name -> list of (units,) float32 arrays.
-    unit_activity: dict[str, list[np.ndarray]] = field(default_factory=dict)
-    # Full network snapshots at chosen frames: frame position -> dict of arrays.
-    snapshots: dict[int, dict[str, Any]] = field(default_factory=dict)
-
-    def __len__(self) -> int:
-        return len(self.frame_index)
-
-
-@dataclass
-class RunResult:
-    """What `Pipeline.run` produced; `out_dir` holds the written files (None when not writing)."""
-
-    name: str
-    record: RunRecord
-    metrics: dict[str, Any]
-    vo_world_from_camera: np.ndarray  # (n, 4, 4)
-    online_world_from_camera: np.ndarray  # (n, 4, 4), planar
-    corrected_world_from_camera: np.ndarray  # (n, 4, 4), planar
-    neural_world_from_camera: np.ndarray  # (n, 4, 4), planar: place-bump position and HD heading
-    ground_truth: np.ndarray | None  # (n, 4, 4), rebased to the first processed frame
-    map_export: dict[str, np.ndarray]
-    interrupted: bool
-    out_dir: Path | None = None
+__all__ = ["NO_VIEW_ID", "STAGES", "Pipeline", "RunRecord", "RunResult", "open_input", "planar_step", "run"]
 
 
 class Pipeline:
@@ -148,15 +91,23 @@ class Pipeline:
             view_cells if view_cells is not None else make_view_cells(self.config.views, dataset.calibration)
         )
         self.map = new_experience_map(self.config.map)
+        self.geometric_closure = self.config.map.closure == ClosureMode.GEOMETRIC
+        self.keyframes: dict[int, Keyframe] = {}
+        if self.geometric_closure:
+            self._extract = KeyframeExtractor(dataset.calibration, self.config.closure)
+            self._measurer = LoopMeasurer(dataset.calibration, self.config.closure)
         self.record = RunRecord()
         self._stored_views: dict[int, ViewPatterns] = {}
+        self._cell_vertex: dict[int, int] = {}  # view cell -> the vertex the agent was at when it was made
         self._active_view: int | None = None
         self._active_run = 0
         self._last_active: dict[int, int] = {}
         self._activation_gap: int | None = None
         self._last_step = np.eye(4)
+        self._vo_pose = np.eye(4)
         self._last_timestamp_s: float | None = None
         self._last_code: tuple[float, float] = (0.0, 0.0)
+        self._closure_odometer_m = -np.inf
         n = len(dataset)
         wanted = self.config.output.state_frames
         self._state_frames = set(wanted if wanted is not None else [0, n // 2])
@@ -169,9 +120,6 @@ class Pipeline:
         Ctrl-C stops after the current frame; the frames processed so far are corrected and written, and
         the result says `interrupted=True`.
         """
-        from hippo_nav.pipeline.results import finish_run
-
-        frames = range(len(self.dataset))
         bar = None
         if self.progress:
             from tqdm import tqdm
@@ -179,17 +127,14 @@ class Pipeline:
             bar = tqdm(total=len(self.dataset), desc=self.dataset_name, unit="frame", dynamic_ncols=True)
         interrupted = False
         stopped_by: DatasetError | None = None
+        loops = 0
         try:
-            for i in frames:
+            for i in range(len(self.dataset)):
                 self._process(i)
                 if bar is not None:
+                    loops += self.record.frames[-1].loop_closure is not None
                     bar.update()
-                    bar.set_postfix(
-                        vertices=len(self.map),
-                        views=len(self.views),
-                        loops=sum(c is not None for c in self.record.loop_closure),
-                        refresh=False,
-                    )
+                    bar.set_postfix(vertices=len(self.map), views=len(self.views), loops=loops, refresh=False)
         except KeyboardInterrupt:
             interrupted = True
             log.warning("interrupted after %d frames; writing what was processed", len(self.record))
@@ -204,9 +149,7 @@ class Pipeline:
         if len(self.record) == 0:
             raise HippoNavError("no frame was processed; nothing to write")
         self._snapshot(len(self.record) - 1, final=True)
-        result = finish_run(
-            self, out_dir, interrupted, stopped_by=None if stopped_by is None else str(stopped_by)
-        )
+        result = self._finish(out_dir, interrupted, stopped_by=None if stopped_by is None else str(stopped_by))
         if stopped_by is not None:
             where = f"written to {out_dir}" if out_dir is not None else "returned in the exception's `result`"
             error = DatasetError(
@@ -222,16 +165,17 @@ class Pipeline:
 
     # ----------------------------------------------------------------------------------------------
     def _process(self, i: int) -> None:
-        rec = self.record
         clock = time.perf_counter()
         frame = self.dataset[i]
         clock = self._lap("load", clock)
 
-        # 1. Visual odometry → planar step and the engine's velocities.
-        step, vo_status = self._vo_step(frame)
+        # 1. Odometry → the 3-D pose, the planar step of the map, dt.
+        step, vo_status = self._odometry_step(frame)
+        previous_planar = planar_from_pose(self._vo_pose)
+        self._vo_pose = self._vo_pose @ step
+        planar = se2_between(previous_planar, planar_from_pose(self._vo_pose))
         dt_s = 0.0 if self._last_timestamp_s is None else float(frame.timestamp_s - self._last_timestamp_s)
         self._last_timestamp_s = float(frame.timestamp_s)
-        forward_m, left_m, yaw_rad = planar_step(step)
         clock = self._lap("vo", clock)
 
         # 2. Local view cells: which view, and what (if anything) it injects.
@@ -240,56 +184,39 @@ class Pipeline:
         clock = self._lap("views", clock)
 
         # 3. Spatial memory integrates the motion (not on the first frame: there is no motion yet).
-        yaw_rate, speed, flag = 0.0, 0.0, "ok" if vo_status == "ok" else f"vo:{vo_status}"
-        if dt_s > 0:
-            yaw_rate, speed = planar_velocities(step, dt_s)
-            readout, yaw_rate, speed, engine_flag = self._engine_step(yaw_rate, speed, dt_s, view)
-            flag = engine_flag or flag
-        else:
-            readout = self.engine.readout()
+        readout, yaw_rate, speed, flag = self._integrate(planar, dt_s, view, vo_status)
         if obs is not None and obs.is_new:
             self._stored_views[int(obs.cell_id)] = self._patterns_to_store()
         clock = self._lap("engine", clock)
 
-        # 4. Experience map.
+        # 4. Loop closure measured against the keyframes of candidate vertices.
+        current: Keyframe | None = None
+        closure, note = None, ""
+        if self.geometric_closure and obs is not None and obs.status == "familiar":
+            closure, note, current = self._measure_closure(frame, int(obs.cell_id), planar)
+        clock = self._lap("closure", clock)
+
+        # 5. Experience map.
         code = self._place_code(readout)
         view_id = NO_VIEW_ID if self._active_view is None else self._active_view
         outcome = self.map.on_frame(
-            view_id, code, float(readout.heading_rad), (forward_m, left_m, yaw_rad), max(dt_s, 0.0)
+            view_id, code, float(readout.heading_rad), tuple(planar), max(dt_s, 0.0), closure
         )
-        vertex = outcome["vertex"]
-        agent = outcome["world_from_agent"]
-        if agent is None:  # lost (relocalising): dead-reckon from the last online pose
-            previous = rec.online_pose[-1] if rec.online_pose else np.zeros(3)
-            agent_pose = se2_compose(previous, np.array([forward_m, left_m, yaw_rad]))
-            offset = np.full(3, np.nan)
-        else:
-            agent_pose = np.array(agent, dtype=np.float64)
-            offset = se2_between(np.asarray(self.map.poses())[vertex], agent_pose)
+        if closure is not None:
+            note = "accepted" if outcome.loop_closure is not None else str(outcome.rejected_closure)
+            if outcome.loop_closure is not None:
+                self._closure_odometer_m = self.map.odometer_m
+        elif outcome.rejected_closure is not None:
+            note = str(outcome.rejected_closure)
+        if outcome.created and outcome.vertex is not None:
+            self.record.vertex_position[int(outcome.vertex)] = len(self.record)
+            if self.geometric_closure:
+                self.keyframes[int(outcome.vertex)] = current or self._extract(frame.left, frame.right)
+        if obs is not None and obs.is_new and outcome.vertex is not None:
+            self._cell_vertex[int(obs.cell_id)] = int(outcome.vertex)
         clock = self._lap("map", clock)
 
-        previous_vo = rec.vo_world_from_camera[-1] if rec.vo_world_from_camera else np.eye(4)
-        rec.frame_index.append(int(frame.index))
-        rec.timestamp_s.append(float(frame.timestamp_s))
-        rec.vo_world_from_camera.append(previous_vo @ step)
-        rec.vo_status.append(vo_status)
-        rec.motion_flag.append(flag)
-        rec.yaw_rate_rad_s.append(yaw_rate)
-        rec.speed_m_s.append(speed)
-        rec.view_cell.append(-1 if obs is None or obs.cell_id is None else int(obs.cell_id))
-        rec.view_status.append("none" if obs is None else str(obs.status))
-        rec.view_difference.append(float("nan") if obs is None else float(obs.difference))
-        rec.injection_strength.append(strength)
-        rec.heading_rad.append(float(readout.heading_rad))
-        rec.place_code_rad.append(code)
-        rec.place_position_m.append(tuple(readout.place_position_m))
-        rec.vertex.append(-1 if vertex is None else int(vertex))
-        rec.vertex_created.append(bool(outcome["created"]))
-        rec.loop_closure.append(outcome["loop_closure"])
-        rec.online_pose.append(agent_pose)
-        rec.vertex_from_agent.append(offset)
-        self._record_units()
-        self._snapshot(len(rec) - 1)
+        self._record(frame, step, vo_status, flag, yaw_rate, speed, obs, strength, readout, code, outcome, note)
         self._lap("record", clock)
 
     def _lap(self, stage: str, since: float) -> float:
@@ -298,17 +225,17 @@ class Pipeline:
         return now
 
     # ----------------------------------------------------------------------------------------------
-    def _vo_step(self, frame: Any) -> tuple[np.ndarray, str]:
-        """The VO's SE(3) step, or the previous step (constant-velocity prior) when the VO fails."""
+    def _odometry_step(self, frame: Any) -> tuple[np.ndarray, str]:
+        """The odometry's SE(3) step, or the previous step (constant-velocity prior) when it fails."""
         try:
             result = self.odometry.process(frame)
             step = np.asarray(result.camera_prev_from_camera_cur, dtype=np.float64)
             status = str(getattr(result, "status", "ok"))
         except (HippoNavError, ArithmeticError) as err:
-            log.warning("frame %s: VO failed (%s); using the previous step", frame.index, err)
+            log.warning("frame %s: odometry failed (%s); using the previous step", frame.index, err)
             return self._last_step.copy(), "failed"
         if step.shape != (4, 4) or not np.isfinite(step).all():
-            log.warning("frame %s: VO returned an invalid step; using the previous step", frame.index)
+            log.warning("frame %s: odometry returned an invalid step; using the previous step", frame.index)
             return self._last_step.copy(), "failed"
         self._last_step = step
         return step, status
@@ -329,7 +256,7 @@ class Pipeline:
         return obs
 
     def _injection(self, obs: Any) -> tuple[ViewPatterns | None, float]:
-        """The stored patterns of a familiar view, scaled by the decaying strength (SPEC §7)."""
+        """The stored patterns of a familiar view, scaled by the decaying strength (docs/model.md)."""
         cfg = self.config.injection
         if not cfg.enabled or obs is None or obs.is_new or obs.cell_id is None:
             return None, 0.0
@@ -358,12 +285,18 @@ class Pipeline:
             grid_layer2=[None if g is None else np.asarray(g, dtype=np.float32) for g in p.grid_layer2],
         )
 
-    def _engine_step(
-        self, yaw_rate: float, speed: float, dt_s: float, view: ViewPatterns | None
+    def _integrate(
+        self, planar: np.ndarray, dt_s: float, view: ViewPatterns | None, vo_status: str
     ) -> tuple[SpatialReadout, float, float, str]:
-        """Step the engine; clamp absurd motion, and if the engine still refuses, skip the motion."""
+        """Step the engine with the planar step's velocities; clamp absurd motion, and if the engine still
+        refuses, skip the motion."""
+        flag = "ok" if vo_status in ("ok", "first") else f"vo:{vo_status}"
+        if dt_s <= 0:
+            return self.engine.readout(), 0.0, 0.0, flag
+        forward_m, left_m, yaw_rad = (float(v) for v in planar)
+        yaw_rate = yaw_rad / dt_s
+        speed = float(np.copysign(np.hypot(forward_m, left_m), forward_m)) / dt_s
         limits = self.config.limits
-        flag = ""
         if abs(speed) > limits.max_speed_m_s or abs(yaw_rate) > limits.max_yaw_rate_rad_s:
             speed = float(np.clip(speed, -limits.max_speed_m_s, limits.max_speed_m_s))
             yaw_rate = float(np.clip(yaw_rate, -limits.max_yaw_rate_rad_s, limits.max_yaw_rate_rad_s))
@@ -380,6 +313,34 @@ class Pipeline:
         except HippoNavError:
             return self.engine.readout(), 0.0, 0.0, "engine_skipped"
 
+    def _measure_closure(
+        self, frame: Any, cell: int, planar: np.ndarray
+    ) -> tuple[tuple[int, tuple[float, float, float], np.ndarray] | None, str, Keyframe | None]:
+        """A verified loop closure for the map (or None), why not, and the frame's keyframe if made.
+
+        Candidates: the vertex where the familiar view was first seen and its odometry neighbours; the map
+        keeps those far enough back along the path and inside its loop gate (the odometry's prediction)."""
+        cfg = self.config.closure
+        if self.map.odometer_m - self._closure_odometer_m < cfg.closure_spacing_m:
+            return None, "", None
+        anchor = self._cell_vertex.get(cell)
+        if anchor is None:
+            return None, "", None
+        nearby = [v for v in (anchor - 1, anchor, anchor + 1) if 0 <= v < len(self.map)]
+        candidates = self.map.loop_candidates(nearby, tuple(planar))
+        if not candidates:
+            return None, "no_candidate", None
+        current = self._extract(frame.left, frame.right)
+        why = "no_keyframe"
+        for vertex, _predicted, _distance in candidates[: cfg.candidates_per_frame]:
+            keyframe = self.keyframes.get(vertex)
+            if keyframe is None:
+                continue
+            measurement, why = self._measurer.measure(keyframe, current)
+            if measurement is not None:
+                return (vertex, measurement.agent_from_target, measurement.information), "measured", current
+        return None, why, current
+
     def _place_code(self, readout: SpatialReadout) -> tuple[float, float]:
         """The place bump's centre on the torus; the fused grid estimate (or the last code) without one."""
         bump = readout.place if readout.place is not None else readout.fused
@@ -388,6 +349,44 @@ class Pipeline:
         return self._last_code
 
     # ----------------------------------------------------------------------------------------------
+    def _record(
+        self, frame, step, vo_status, flag, yaw_rate, speed, obs, strength, readout, code, outcome, note
+    ) -> None:
+        agent = outcome.world_from_agent
+        offset = outcome.vertex_from_agent
+        if agent is None:  # lost (relocalising): dead-reckon from the last online pose
+            previous = self.record.frames[-1].online_pose if self.record.frames else np.zeros(3)
+            agent_pose = se2_compose(previous, np.array(planar_step(step)))
+            offset_pose = np.full(3, np.nan)
+        else:
+            agent_pose, offset_pose = np.array(agent), np.array(offset)
+        self.record.append(
+            FrameRecord(
+                frame_index=int(frame.index),
+                timestamp_s=float(frame.timestamp_s),
+                vo_world_from_camera=self._vo_pose.copy(),
+                vo_status=vo_status,
+                motion_flag=flag,
+                yaw_rate_rad_s=yaw_rate,
+                speed_m_s=speed,
+                view_cell=-1 if obs is None or obs.cell_id is None else int(obs.cell_id),
+                view_status="none" if obs is None else str(obs.status),
+                view_difference=float("nan") if obs is None else float(obs.difference),
+                injection_strength=strength,
+                heading_rad=float(readout.heading_rad),
+                place_code_rad=code,
+                place_position_m=(float(readout.place_position_m[0]), float(readout.place_position_m[1])),
+                vertex=-1 if outcome.vertex is None else int(outcome.vertex),
+                vertex_created=bool(outcome.created),
+                loop_closure=outcome.loop_closure,
+                closure_note=note,
+                online_pose=agent_pose,
+                vertex_from_agent=offset_pose,
+            )
+        )
+        self._record_units()
+        self._snapshot(len(self.record) - 1, readout=readout)
+
     def _record_units(self) -> None:
         """A regular sub-grid of units of every layer-II pattern and of the place torus, for rate maps."""
         s = self._unit_stride
@@ -403,12 +402,12 @@ class Pipeline:
             np.asarray(self.engine.place_activity()[::s, ::s], dtype=np.float32).ravel()
         )
 
-    def _snapshot(self, position: int, final: bool = False) -> None:
+    def _snapshot(self, position: int, final: bool = False, readout: SpatialReadout | None = None) -> None:
         if not (final or position in self._state_frames) or position in self.record.snapshots:
             return
         sm = self.engine
         self.record.snapshots[position] = {
-            "frame_index": self.record.frame_index[position],
+            "frame_index": self.record.frames[position].frame_index,
             "hd": sm.hd_activity(),
             "grid": [None if sm.config.lesioned[m] else sm.grid_activity(m) for m in range(3)],
             "layer2": [None if sm.config.lesioned[m] else sm.grid_layer2(m) for m in range(3)],
@@ -416,7 +415,79 @@ class Pipeline:
             "k": [g.k for g in sm.config.grid],
             "nu_max": [g.nu_max for g in sm.config.grid],
             "hd_nu_max": sm.config.hd.nu_max,
+            "readout": readout if readout is not None else sm.readout(),
         }
+
+    # ----------------------------------------------------------------------------------------------
+    def _correct(self) -> dict[str, Any]:
+        """The configured final correction; its report (method "none" when disabled or loop-free)."""
+        cfg = self.config.correction
+        export = self.map.export()
+        if cfg.method == "none" or not np.asarray(export["link_is_loop"]).any():
+            return {"method": "none", "reason": "disabled" if cfg.method == "none" else "no loop closure"}
+        if cfg.method == "relaxation":
+            report = self.map.correct("relaxation", passes=cfg.relaxation_passes, gain=cfg.relaxation_gain)
+        else:
+            report = self.map.correct(
+                "least_squares",
+                initialization="current",
+                robust_loss=cfg.robust_loss,
+                robust_scale_chi2=cfg.robust_scale_chi2,
+                max_iterations=cfg.max_iterations,
+            )
+        return {"method": cfg.method, **dict(report)}
+
+    def _finish(self, out_dir: str | Path | None, interrupted: bool, stopped_by: str | None) -> RunResult:
+        """Correct the map, assemble the trajectories, evaluate, and write the results folder."""
+        from hippo_nav.pipeline.frontend import resolved_frontend_params
+        from hippo_nav.pipeline.results import evaluate, write_results
+
+        clock = time.perf_counter()
+        correction = self._correct()
+        correction_s = time.perf_counter() - clock
+        record = self.record
+        export = {k: np.asarray(v) for k, v in self.map.export().items()}
+        vo = np.stack(record.column("vo_world_from_camera"))
+        online = np.stack(record.column("online_pose"))
+        corrected = corrected_track(record, export["poses"])
+        neural = np.column_stack(
+            [np.asarray(record.column("place_position_m")), np.asarray(record.column("heading_rad"))]
+        )
+        gt = self.dataset.ground_truth()
+        if gt is not None:
+            gt = np.asarray(gt)[: len(record)]
+            gt = np.linalg.inv(gt[0]) @ gt
+        result = RunResult(
+            name=self.dataset_name,
+            record=record,
+            metrics={},
+            vo_world_from_camera=vo,
+            online_world_from_camera=lift_planar(online, vo),
+            corrected_world_from_camera=lift_planar(corrected, vo),
+            neural_world_from_camera=lift_planar(neural, vo),
+            ground_truth=gt,
+            map_export=export,
+            interrupted=interrupted,
+        )
+        result.metrics = evaluate(self, result, correction, stopped_by)
+        result.metrics["timing"]["correction_s"] = correction_s
+        if out_dir is not None:
+            frontend = resolved_frontend_params(self.odometry, self.views)
+            write_results(result, Path(out_dir), self.config, frontend, self.map)
+        return result
+
+
+def corrected_track(record: RunRecord, vertex_poses: np.ndarray) -> np.ndarray:
+    """(n, 3) planar pose of every frame after correction: its vertex's corrected pose ∘ its offset.
+    Frames without a vertex (never, unless relocalising) keep their online pose."""
+    vertex = np.asarray(record.column("vertex"))
+    offset = np.stack(record.column("vertex_from_agent"))
+    online = np.stack(record.column("online_pose"))
+    track = online.copy()
+    ok = (vertex >= 0) & np.isfinite(offset).all(axis=1)
+    if ok.any():
+        track[ok] = se2_compose(vertex_poses[vertex[ok]], offset[ok])
+    return track
 
 
 def open_input(

@@ -1,25 +1,34 @@
-"""The end of a run: final map correction, the three trajectories, metrics and the results folder.
+"""Metrics of a run (`evaluate`) and its results folder (`write_results`).
 
-Results folder (every file is written even when the run was interrupted, for the frames processed):
+Results folder (every file is written even when the run was interrupted, for the frames processed;
+trajectories first, then metrics, then figures, so a failing figure never costs the rest):
 
 | file | what |
 |---|---|
 | `config.json` | the fully resolved config of the run (feed it back with `--config` to repeat the run) |
-| `trajectory_vo.{kitti,tum}.txt` | the stereo VO alone, SE(3) |
-| `trajectory_online.{kitti,tum}.txt` | the map's agent pose at each frame as the run went (planar) |
+| `trajectory_vo.{kitti,tum}.txt` | the odometry alone (built-in VO or replayed), SE(3) |
+| `trajectory_online.{kitti,tum}.txt` | the map's agent pose at each frame as the run went |
 | `trajectory_corrected.{kitti,tum}.txt` | the final corrected map at every frame: vertex pose ∘ the frame's offset |
 | `trajectory_neural.{kitti,tum}.txt` | the networks' own estimate: unwrapped place-bump position and HD heading |
-| `ground_truth.kitti.txt` | the dataset's ground truth for the frames used, rebased to the first of them |
-| `frames.csv` | per frame: VO status, motion given to the engine, view cell, injection, vertex, loop closures |
+| `ground_truth.{kitti,tum}.txt` | the dataset's ground truth for the frames used, rebased to the first of them |
+| `frames.csv` | per frame: odometry status, motion given to the engine, view cell, injection, vertex, closures |
+| `bump_table.csv` | the paper's bump table (μ, σ of every bump of every module, fused and place) at chosen frames |
 | `map.bin`, `map.g2o` | the corrected experience map (versioned save file; g2o pose graph) |
-| `metrics.json` | sizes, loop closures, timing per stage and, with ground truth, ATE 2-D/3-D and t_rel/r_rel |
+| `metrics.json` | sizes, loop closures (precision, recall), timing per stage and, with ground truth, errors |
 | `cognitive_map.png`, `neural_state_NNNNNN.png`, `rate_maps.png` | figures (see `plots.py`) |
 
-Every trajectory is in the KITTI camera frame of the first processed frame (x right, y down, z forward);
-planar estimates are level at height 0. Metrics use `hippo_nav.metrics`: ATE after rigid (SE(3)) Umeyama
-alignment, in 3-D and projected on the ground plane (2-D); relative errors with the KITTI devkit protocol
-over the devkit's lengths (100–800 m) that fit the trajectory, else over 1/4, 1/2 and 3/4 of its length
-(the lengths used are written with the numbers).
+Every trajectory is in the KITTI camera frame of the first processed frame (x right, y down, z forward).
+The map's and the networks' planar estimates carry the odometry's height, pitch and roll. Metrics use
+`hippo_nav.metrics`: ATE after rigid (SE(3)) Umeyama alignment of the positions, in 3-D and projected on
+the ground plane (2-D); relative errors with the KITTI devkit protocol over the devkit's lengths
+(100–800 m) that fit the trajectory, else over 1/4, 1/2 and 3/4 of its length (the lengths used are
+written with the numbers).
+
+Loop closures against ground truth: a closure (the frame that closed it and the frame that made its target
+vertex) is *true* when the two camera positions are within `CLOSURE_TRUE_M` (5 m). A frame is a *revisit*
+when the ground truth passed within 5 m of it earlier, at least the map's `min_loop_separation_m` of path
+before; recall is the share of revisit frames that lie within `CLOSURE_COVER_M` of travel of a true
+closure (a closure every few metres along a revisited street counts the whole street as recognised).
 """
 
 from __future__ import annotations
@@ -28,6 +37,8 @@ import csv
 import json
 import logging
 import math
+import resource
+import sys
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -36,50 +47,17 @@ import numpy as np
 
 from hippo_nav.io import write_kitti_poses, write_tum
 from hippo_nav.metrics import KITTI_SEGMENT_LENGTHS_M, ate_rmse, relative_errors_kitti, trajectory_distances_m
-from hippo_nav.pipeline.config import resolved_config_dict
-from hippo_nav.pipeline.pipeline import STAGES, RunResult, se2_compose
-from hippo_nav.synthetic import planar_poses
+from hippo_nav.pipeline.config import PipelineConfig, resolved_config_dict
+from hippo_nav.pipeline.records import STAGES, RunRecord, RunResult
 
 if TYPE_CHECKING:
     from hippo_nav.pipeline.pipeline import Pipeline
 
 log = logging.getLogger("hippo_nav.pipeline")
 
-
-def _poses_from_planar(xy_yaw: np.ndarray) -> np.ndarray:
-    return planar_poses(xy_yaw[:, 0], xy_yaw[:, 1], xy_yaw[:, 2])
-
-
-def correct_map(pipeline: Pipeline) -> dict[str, Any]:
-    """Run the configured final correction; returns its report (empty when disabled or no loop)."""
-    cfg = pipeline.config.correction
-    export = pipeline.map.export()
-    if cfg.method == "none" or not np.asarray(export["link_is_loop"]).any():
-        return {"method": "none", "reason": "disabled" if cfg.method == "none" else "no loop closure"}
-    if cfg.method == "relaxation":
-        report = pipeline.map.correct("relaxation", passes=cfg.relaxation_passes, gain=cfg.relaxation_gain)
-    else:
-        report = pipeline.map.correct(
-            "least_squares",
-            initialization="current",
-            robust_loss=cfg.robust_loss,
-            robust_scale_chi2=cfg.robust_scale_chi2,
-            max_iterations=cfg.max_iterations,
-        )
-    return {"method": cfg.method, **{k: v for k, v in report.items()}}
-
-
-def corrected_track(record: Any, vertex_poses: np.ndarray) -> np.ndarray:
-    """(n, 3) planar pose of every frame after correction: its vertex's corrected pose ∘ its offset.
-    Frames without a vertex (never, unless relocalising) keep their online pose."""
-    vertex = np.asarray(record.vertex)
-    offset = np.asarray(record.vertex_from_agent)
-    online = np.asarray(record.online_pose)
-    track = online.copy()
-    ok = (vertex >= 0) & np.isfinite(offset).all(axis=1)
-    if ok.any():
-        track[ok] = se2_compose(vertex_poses[vertex[ok]], offset[ok])
-    return track
+CLOSURE_TRUE_M = 5.0
+CLOSURE_COVER_M = 10.0
+TIMING_WINDOW_FRAMES = 100
 
 
 def _segment_lengths(gt: np.ndarray) -> tuple[float, ...]:
@@ -108,7 +86,11 @@ def trajectory_errors(gt: np.ndarray, estimates: dict[str, np.ndarray]) -> dict[
     """ATE (3-D and 2-D, SE(3)-aligned) and KITTI relative errors of each estimate against `gt`."""
     lengths = _segment_lengths(gt)
     step = max(1, min(10, len(gt) // 20))
-    out: dict[str, Any] = {"segment_lengths_m": list(lengths), "segment_step_frames": step}
+    out: dict[str, Any] = {
+        "alignment": "SE(3) Umeyama on positions (no scale); 2-D: projected on the ground plane first",
+        "segment_lengths_m": list(lengths),
+        "segment_step_frames": step,
+    }
     for name, est in estimates.items():
         entry: dict[str, Any] = {
             "ate_3d_m": ate_rmse(gt, est, planar=False, align="se3"),
@@ -125,23 +107,160 @@ def trajectory_errors(gt: np.ndarray, estimates: dict[str, np.ndarray]) -> dict[
     return out
 
 
-def _timing(record: Any, extra_s: dict[str, float]) -> dict[str, Any]:
+def closure_quality(
+    gt: np.ndarray, record: RunRecord, min_separation_m: float
+) -> dict[str, Any]:
+    """Precision and recall of the run's loop closures against ground truth (module doc)."""
+    positions = gt[:, :3, 3]
+    path_m = trajectory_distances_m(gt)
+    closures = [(p, c) for p, c in enumerate(record.column("loop_closure")) if c is not None]
+    true_frames: list[int] = []
+    errors_m: list[float] = []
+    for position, (_, target) in closures:
+        made = record.vertex_position.get(int(target))
+        if made is None:
+            continue
+        distance = float(np.linalg.norm(positions[position] - positions[made]))
+        errors_m.append(distance)
+        if distance < CLOSURE_TRUE_M:
+            true_frames.append(position)
+    revisit = np.zeros(len(gt), dtype=bool)
+    chunk = 512
+    for lo in range(0, len(gt), chunk):
+        d = np.linalg.norm(positions[lo : lo + chunk, None, :] - positions[None, :, :], axis=-1)
+        earlier = path_m[None, :] <= path_m[lo : lo + chunk, None] - min_separation_m
+        revisit[lo : lo + chunk] = ((d < CLOSURE_TRUE_M) & earlier).any(axis=1)
+    covered = np.zeros(len(gt), dtype=bool)
+    for position in true_frames:
+        covered |= np.abs(path_m - path_m[position]) <= CLOSURE_COVER_M
+    n_revisit = int(revisit.sum())
+    return {
+        "closures": len(closures),
+        "true_closures": len(true_frames),
+        "false_closures": len(errors_m) - len(true_frames),
+        "precision": len(true_frames) / len(errors_m) if errors_m else None,
+        "revisit_frames": n_revisit,
+        "recall": float((revisit & covered).sum() / n_revisit) if n_revisit else None,
+        "max_closure_distance_m": max(errors_m) if errors_m else None,
+        "true_distance_m": CLOSURE_TRUE_M,
+        "cover_m": CLOSURE_COVER_M,
+    }
+
+
+def _peak_rss_mb() -> float:
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    # Linux reports kilobytes, macOS bytes.
+    return peak / 1024.0 if sys.platform != "darwin" else peak / 2**20
+
+
+def timing(record: RunRecord) -> dict[str, Any]:
+    """Per-frame time of every stage over the run, its first and last `TIMING_WINDOW_FRAMES` frames."""
     n = len(record)
     per_stage = {s: float(np.sum(record.stage_s[s])) for s in STAGES}
     frame_total = sum(per_stage.values())
+    window = min(TIMING_WINDOW_FRAMES, n)
+
+    def ms(which: slice) -> dict[str, float]:
+        return {s: 1e3 * float(np.mean(record.stage_s[s][which])) for s in STAGES} if n else {}
+
     return {
         "frames": n,
         "per_frame_ms": {s: 1e3 * v / max(n, 1) for s, v in per_stage.items()},
+        "first_frames_ms": ms(slice(0, window)),
+        "last_frames_ms": ms(slice(n - window, n)),
+        "window_frames": window,
         "share_of_frame": {s: v / frame_total if frame_total > 0 else None for s, v in per_stage.items()},
         "frames_per_s": n / frame_total if frame_total > 0 else None,
         "frames_per_s_without_image_loading": n / (frame_total - per_stage["load"])
         if frame_total > per_stage["load"]
         else None,
-        **{f"{k}_s": v for k, v in extra_s.items()},
+        "peak_rss_mb": _peak_rss_mb(),
     }
 
 
-def _write_frames_csv(path: Path, record: Any) -> None:
+def evaluate(pipeline: Pipeline, result: RunResult, correction: dict[str, Any], stopped_by: str | None) -> dict:
+    """The run's metrics (sizes, closures, timing, and with ground truth the trajectory errors)."""
+    record = result.record
+    n = len(record)
+    export = result.map_export
+    closures = record.column("loop_closure")
+    notes = [note for note in record.column("closure_note") if note]
+    statuses, counts = np.unique(record.column("vo_status"), return_counts=True)
+    note_kinds, note_counts = np.unique(notes, return_counts=True) if notes else ([], [])
+    metrics: dict[str, Any] = {
+        "sequence": result.name,
+        "note": getattr(pipeline.dataset, "note", ""),
+        "frames": n,
+        "frames_requested": len(pipeline.dataset),
+        "interrupted": result.interrupted,
+        "stopped_by_error": stopped_by,
+        "seed": pipeline.config.seed,
+        "lesioned": list(pipeline.engine.config.lesioned),
+        "closure_mode": pipeline.config.map.closure.value,
+        "distance_vo_m": float(trajectory_distances_m(result.vo_world_from_camera)[-1]),
+        "view_cells": len(pipeline.views),
+        "familiar_view_frames": int(sum(s == "familiar" for s in record.column("view_status"))),
+        "injected_frames": int(sum(s > 0 for s in record.column("injection_strength"))),
+        "vertices": len(export["poses"]),
+        "links": len(export["links"]),
+        "keyframes": len(pipeline.keyframes),
+        "keyframe_bytes": int(sum(k.nbytes for k in pipeline.keyframes.values())),
+        "loop_closures": int(sum(c is not None for c in closures)),
+        "loop_closure_frames": [record.frames[p].frame_index for p, c in enumerate(closures) if c is not None],
+        "closure_attempts": {str(k): int(c) for k, c in zip(note_kinds, note_counts)},
+        "vo_status_counts": {str(s): int(c) for s, c in zip(statuses, counts)},
+        "motion_flags": int(sum(f != "ok" for f in record.column("motion_flag"))),
+        "correction": correction,
+        "timing": timing(record),
+    }
+    gt = result.ground_truth
+    if gt is not None:
+        metrics["distance_gt_m"] = float(trajectory_distances_m(gt)[-1])
+        metrics["errors"] = trajectory_errors(gt, result.estimates)
+        metrics["closure_quality"] = closure_quality(gt, record, pipeline.config.map.min_loop_separation_m)
+    return metrics
+
+
+def bump_rows(record: RunRecord) -> list[dict[str, Any]]:
+    """The paper's bump table at the snapshot frames: one row per bump (μ, σ per axis, rad)."""
+    rows: list[dict[str, Any]] = []
+    for _position, snapshot in sorted(record.snapshots.items()):
+        readout = snapshot.get("readout")
+        if readout is None:
+            continue
+        frame = int(snapshot["frame_index"])
+        for module in readout.modules:
+            for index, bump in enumerate(module.bumps):
+                rows.append(_bump_row(frame, "grid", module.k, index, bump))
+        if readout.fused is not None:
+            rows.append(_bump_row(frame, "fused", "", 0, readout.fused))
+        if readout.place is not None:
+            rows.append(_bump_row(frame, "place", "", 0, readout.place))
+    return rows
+
+
+def _bump_row(frame: int, what: str, k: int | str, index: int, bump: Any) -> dict[str, Any]:
+    return {
+        "frame": frame, "what": what, "k": k, "bump": index,
+        "mu_x_rad": bump.mean_rad[0], "mu_y_rad": bump.mean_rad[1],
+        "sigma_x_rad": bump.std_rad[0], "sigma_y_rad": bump.std_rad[1],
+    }  # fmt: skip
+
+
+def format_bump_table(rows: list[dict[str, Any]]) -> str:
+    """The bump table as aligned text, one block per frame."""
+    lines = []
+    for frame in sorted({r["frame"] for r in rows}):
+        lines.append(f"frame {frame}:  what   k  bump   μx (rad)  μy (rad)   σx (rad)  σy (rad)")
+        for r in (r for r in rows if r["frame"] == frame):
+            lines.append(
+                f"            {r['what']:<6} {r['k']!s:>2} {r['bump']:>5} {r['mu_x_rad']:>9.3f} "
+                f"{r['mu_y_rad']:>9.3f} {r['sigma_x_rad']:>10.3f} {r['sigma_y_rad']:>9.3f}"
+            )
+    return "\n".join(lines)
+
+
+def _write_frames_csv(path: Path, record: RunRecord) -> None:
     with path.open("w", newline="") as f:
         w = csv.writer(f)
         w.writerow(
@@ -149,140 +268,71 @@ def _write_frames_csv(path: Path, record: Any) -> None:
                 "frame", "timestamp_s", "vo_status", "motion_flag", "yaw_rate_rad_s", "speed_m_s",
                 "view_cell", "view_status", "view_difference", "injection_strength", "heading_rad",
                 "place_code_x_rad", "place_code_y_rad", "vertex", "vertex_created", "loop_closure",
+                "closure_note",
             ]
         )  # fmt: skip
-        for i in range(len(record)):
-            loop = record.loop_closure[i]
+        for r in record.frames:
+            loop = r.loop_closure
             w.writerow(
                 [
-                    record.frame_index[i],
-                    f"{record.timestamp_s[i]:.6f}",
-                    record.vo_status[i],
-                    record.motion_flag[i],
-                    f"{record.yaw_rate_rad_s[i]:.6g}",
-                    f"{record.speed_m_s[i]:.6g}",
-                    record.view_cell[i],
-                    record.view_status[i],
-                    f"{record.view_difference[i]:.4f}",
-                    f"{record.injection_strength[i]:.4g}",
-                    f"{record.heading_rad[i]:.6f}",
-                    f"{record.place_code_rad[i][0]:.6f}",
-                    f"{record.place_code_rad[i][1]:.6f}",
-                    record.vertex[i],
-                    int(record.vertex_created[i]),
-                    "" if loop is None else f"{loop[0]}->{loop[1]}",
+                    r.frame_index, f"{r.timestamp_s:.6f}", r.vo_status, r.motion_flag,
+                    f"{r.yaw_rate_rad_s:.6g}", f"{r.speed_m_s:.6g}", r.view_cell, r.view_status,
+                    f"{r.view_difference:.4f}", f"{r.injection_strength:.4g}", f"{r.heading_rad:.6f}",
+                    f"{r.place_code_rad[0]:.6f}", f"{r.place_code_rad[1]:.6f}", r.vertex,
+                    int(r.vertex_created), "" if loop is None else f"{loop[0]}->{loop[1]}", r.closure_note,
                 ]
-            )
+            )  # fmt: skip
 
 
-def finish_run(
-    pipeline: Pipeline, out_dir: str | Path | None, interrupted: bool, stopped_by: str | None = None
-) -> RunResult:
-    """Correct the map, build the trajectories and metrics, and write the results folder."""
-    record = pipeline.record
-    n = len(record)
-    clock = time.perf_counter()
-    correction = correct_map(pipeline)
-    correction_s = time.perf_counter() - clock
+def _write_bump_table(path: Path, rows: list[dict[str, Any]]) -> None:
+    with path.open("w", newline="") as f:
+        names = ["frame", "what", "k", "bump", "mu_x_rad", "mu_y_rad", "sigma_x_rad", "sigma_y_rad"]
+        w = csv.DictWriter(f, fieldnames=names)
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: (f"{v:.6f}" if isinstance(v, float) else v) for k, v in r.items()})
 
-    export = {k: np.asarray(v) for k, v in pipeline.map.export().items()}
-    vo = np.stack(record.vo_world_from_camera)
-    online = _poses_from_planar(np.asarray(record.online_pose))
-    corrected = _poses_from_planar(corrected_track(record, export["poses"]))
-    place = np.asarray(record.place_position_m)
-    neural = planar_poses(place[:, 0], place[:, 1], np.asarray(record.heading_rad))
-    estimates = {"vo": vo, "online": online, "corrected": corrected, "neural": neural}
 
-    gt = pipeline.dataset.ground_truth()
-    if gt is not None:
-        gt = np.asarray(gt)[:n]
-        gt = np.linalg.inv(gt[0]) @ gt
-
-    loops = [c for c in record.loop_closure if c is not None]
-    statuses, counts = np.unique(record.vo_status, return_counts=True)
-    metrics: dict[str, Any] = {
-        "sequence": pipeline.dataset_name,
-        "note": getattr(pipeline.dataset, "note", ""),
-        "frames": n,
-        "frames_requested": len(pipeline.dataset),
-        "interrupted": interrupted,
-        "stopped_by_error": stopped_by,
-        "seed": pipeline.config.seed,
-        "lesioned": list(pipeline.engine.config.lesioned),
-        "distance_vo_m": float(trajectory_distances_m(vo)[-1]),
-        "view_cells": len(pipeline.views),
-        "familiar_view_frames": int(sum(s == "familiar" for s in record.view_status)),
-        "injected_frames": int(sum(s > 0 for s in record.injection_strength)),
-        "vertices": len(export["poses"]),
-        "links": len(export["links"]),
-        "loop_closures": len(loops),
-        "loop_closure_frames": [
-            record.frame_index[i] for i, c in enumerate(record.loop_closure) if c is not None
-        ],
-        "vo_status_counts": {str(s): int(c) for s, c in zip(statuses, counts)},
-        "motion_flags": int(sum(f != "ok" for f in record.motion_flag)),
-        "correction": correction,
-    }
-    if gt is not None:
-        metrics["distance_gt_m"] = float(trajectory_distances_m(gt)[-1])
-        metrics["errors"] = trajectory_errors(gt, estimates)
-
-    result = RunResult(
-        name=pipeline.dataset_name,
-        record=record,
-        metrics=metrics,
-        vo_world_from_camera=vo,
-        online_world_from_camera=online,
-        corrected_world_from_camera=corrected,
-        neural_world_from_camera=neural,
-        ground_truth=gt,
-        map_export=export,
-        interrupted=interrupted,
-    )
-    if out_dir is None:
-        metrics["timing"] = _timing(record, {"correction": correction_s})
-        return result
-
-    out = Path(out_dir)
+def write_results(
+    result: RunResult,
+    out: Path,
+    config: PipelineConfig,
+    frontend: dict[str, Any] | None = None,
+    experience_map: Any = None,
+) -> None:
+    """Write the results folder of a run (module doc); `result.out_dir` is set. `frontend`: the resolved
+    front-end parameters for config.json; `experience_map`: the map to save (map.bin, map.g2o)."""
     out.mkdir(parents=True, exist_ok=True)
     clock = time.perf_counter()
-    resolved = resolved_config_dict(pipeline.config)
-    resolved.update(_frontend_resolved(pipeline))
+    resolved = resolved_config_dict(config)
+    resolved.update(frontend or {})
     (out / "config.json").write_text(json.dumps(resolved, indent=2) + "\n")
-    times = np.asarray(record.timestamp_s)
-    for name, poses in estimates.items():
+    times = np.asarray(result.record.column("timestamp_s"))
+    for name, poses in result.estimates.items():
         write_kitti_poses(out / f"trajectory_{name}.kitti.txt", poses)
         write_tum(out / f"trajectory_{name}.tum.txt", times, poses)
-    if gt is not None:
-        write_kitti_poses(out / "ground_truth.kitti.txt", gt)
-        write_tum(out / "ground_truth.tum.txt", times, gt)
-    _write_frames_csv(out / "frames.csv", record)
-    if pipeline.config.output.save_map:
-        pipeline.map.save(out / "map.bin")
-        pipeline.map.write_g2o(out / "map.g2o")
-    write_s = time.perf_counter() - clock
-    metrics["timing"] = _timing(record, {"correction": correction_s, "write": write_s})
-    # Written before the figures too, so an interrupt while plotting still leaves the metrics.
+    if result.ground_truth is not None:
+        write_kitti_poses(out / "ground_truth.kitti.txt", result.ground_truth)
+        write_tum(out / "ground_truth.tum.txt", times, result.ground_truth)
+    _write_frames_csv(out / "frames.csv", result.record)
+    _write_bump_table(out / "bump_table.csv", bump_rows(result.record))
+    result.out_dir = out
+    metrics = result.metrics
+    metrics["timing"]["write_s"] = time.perf_counter() - clock
+    # Written before the map and the figures too, so an interrupt while plotting still leaves the metrics.
     (out / "metrics.json").write_text(json.dumps(_clean(metrics), indent=2) + "\n")
-    figures_s = 0.0
-    if pipeline.config.output.figures:
+    if config.output.save_map and experience_map is not None:
+        experience_map.save(out / "map.bin")
+        experience_map.write_g2o(out / "map.g2o")
+    if config.output.figures:
         from hippo_nav.pipeline.plots import write_run_figures
 
         clock = time.perf_counter()
         try:
-            written = write_run_figures(result, out, pipeline.config.output.rate_map_bin_m)
+            written = write_run_figures(result, out, config.output.rate_map_bin_m)
             metrics["figures"] = [p.name for p in written]
         except KeyboardInterrupt:
             log.warning("figures interrupted; the other results are written")
             metrics["figures"] = []
-        figures_s = time.perf_counter() - clock
-    metrics["timing"] = _timing(record, {"correction": correction_s, "write": write_s, "figures": figures_s})
+        metrics["timing"]["figures_s"] = time.perf_counter() - clock
     (out / "metrics.json").write_text(json.dumps(_clean(metrics), indent=2) + "\n")
-    result.out_dir = out
-    return result
-
-
-def _frontend_resolved(pipeline: Pipeline) -> dict[str, Any]:
-    from hippo_nav.pipeline.frontend import resolved_frontend_params
-
-    return resolved_frontend_params(pipeline.odometry, pipeline.views)

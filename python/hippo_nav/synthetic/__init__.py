@@ -4,6 +4,8 @@
 times.txt, poses) that `hippo_nav.datasets.KittiOdometry` reads back. Trajectories come from
 `loop_trajectory` (a driven loop with a revisit) or `kitti_trajectory` (any KITTI ground-truth file, so
 real loop geometry such as sequences 00, 05, 06, 07 can be rendered). `demo_sequence` is the built-in demo.
+`drifting_odometry(ground_truth)` turns a trajectory into a drifting odometry (scale error, yaw bias, noise),
+e.g. to write a file for `hippo-nav run --odometry`.
 """
 
 from __future__ import annotations
@@ -11,6 +13,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from hippo_nav.synthetic.drift import drifting_odometry, yaw_rotation
 from hippo_nav.synthetic.render import (
     KITTI_FOCAL_RATIO,
     render_cached,
@@ -58,16 +61,18 @@ __all__ = [
     "StreetWorld",
     "default_cache_dir",
     "demo_sequence",
+    "drifting_odometry",
     "kitti_trajectory",
     "level_trajectory",
     "loop_trajectory",
     "path_length_m",
     "planar_poses",
-    "road_heights_m",
-    "road_trajectory",
     "render_cached",
     "render_kitti",
     "render_sequence",
+    "road_heights_m",
+    "road_trajectory",
     "scale_trajectory",
     "stereo_projections",
+    "yaw_rotation",
 ]

@@ -1,7 +1,7 @@
 """Camera trajectories for synthetic sequences, as (N, 4, 4) `world_from_camera` arrays (KITTI frames).
 
-Planar convention (SPEC §9): the map's (forward, left) axes are the world's (z, −x); yaw ψ turns about
-−y (counter-clockwise seen from above is a left turn), so a camera with yaw ψ looks along
+Planar convention (`hippo_nav.geometry`): the map's (forward, left) axes are the world's (z, −x); yaw ψ
+turns about −y (counter-clockwise seen from above is a left turn), so a camera with yaw ψ looks along
 world (x, z) = (−sin ψ, cos ψ). Height is up, i.e. world y = −height.
 """
 
@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hippo_nav.geometry import planar_from_pose, pose_from_planar
 from hippo_nav.io.errors import DatasetError
 from hippo_nav.io.poses import read_kitti_poses
 
@@ -24,13 +25,7 @@ def planar_poses(
     )
     if not (len(forward_m) == len(left_m) == len(yaw_rad)):
         raise DatasetError("forward_m, left_m and yaw_rad must have the same length")
-    c, s = np.cos(yaw_rad), np.sin(yaw_rad)
-    poses = np.tile(np.eye(4), (len(yaw_rad), 1, 1))
-    # Columns are the camera axes in the world: x (right) = (c, 0, s), y (down), z (forward) = (−s, 0, c).
-    poses[:, 0, 0], poses[:, 2, 0] = c, s
-    poses[:, 0, 2], poses[:, 2, 2] = -s, c
-    poses[:, 0, 3], poses[:, 1, 3], poses[:, 2, 3] = -left_m, -height_m, forward_m
-    return poses
+    return pose_from_planar(np.column_stack([forward_m, left_m, yaw_rad]), height_m)
 
 
 def loop_trajectory(
@@ -121,9 +116,7 @@ def kitti_trajectory(
 def level_trajectory(world_from_camera: np.ndarray) -> np.ndarray:
     """Same positions and headings, roll and pitch removed (camera y axis = world down)."""
     poses = np.asarray(world_from_camera, dtype=np.float64)
-    forward = poses[:, :3, 2]
-    yaw = np.arctan2(-forward[:, 0], forward[:, 2])
-    level = planar_poses(np.zeros(len(poses)), np.zeros(len(poses)), yaw)
+    level = pose_from_planar(planar_from_pose(poses))
     level[:, :3, 3] = poses[:, :3, 3]
     return level
 

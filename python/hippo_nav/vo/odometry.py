@@ -31,6 +31,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from hippo_nav._core import HippoNavError
+from hippo_nav.geometry import planar_step
 
 STATUSES = ("first", "ok", "low_texture", "rejected")
 """`VoStep.status`: first frame (identity); a measured step; too few features, tracks or inliers (prior
@@ -91,15 +92,6 @@ class VoStep:
     def planar_velocities(self) -> tuple[float, float]:
         """(yaw_rate_rad_s, speed_m_s) of the step; speed is negative when reversing, 0 on the first frame."""
         return planar_velocities(self.camera_prev_from_camera_cur, self.dt_s)
-
-
-def planar_step(camera_prev_from_camera_cur: np.ndarray) -> tuple[float, float, float]:
-    """(forward_m, left_m, yaw_rad) of an SE(3) camera step (camera frame: x right, y down, z forward)."""
-    t = np.asarray(camera_prev_from_camera_cur, dtype=np.float64)
-    forward, left = t[2, 3], -t[0, 3]
-    # The current camera's z axis seen from the previous camera; yaw turns about −y (left positive).
-    yaw = np.arctan2(-t[0, 2], t[2, 2])
-    return float(forward), float(left), float(yaw)
 
 
 def planar_velocities(camera_prev_from_camera_cur: np.ndarray, dt_s: float) -> tuple[float, float]:

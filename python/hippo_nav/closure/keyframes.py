@@ -1,0 +1,144 @@
+"""Compact stereo keyframes: what a map vertex keeps so that a later visit can measure its pose.
+
+A keyframe holds, for up to `keyframe_features` ORB corners of the left image that have a stereo match,
+the pixel position (float32), the 256-bit ORB descriptor (32 bytes) and the 3-D point in the camera
+frame (float32, x right, y down, z forward; depth `Z = fx·b/d` from the disparity d): 52 bytes a
+feature, about 16 kB at 300 features — no image is stored.
+
+Stereo matching follows the VO (`hippo_nav.vo`): each corner is tracked into the right image with
+pyramidal KLT started at the disparity of a typical depth, checked back into the left image, and kept when
+its row stays within `stereo_row_tolerance_px` and its disparity is positive. ORB's patch and border adapt
+to small images (a 96-row render keeps most of its rows).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from hippo_nav._core import HippoNavError
+
+
+class ClosureConfig(BaseModel):
+    """Geometric loop-closure parameters (the map's `closure` mode chooses whether they are used)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    orb_features: int = Field(500, ge=16, description="ORB corners detected per left image")
+    keyframe_features: int = Field(300, ge=16, description="strongest stereo features a keyframe keeps")
+    ratio_test: float = Field(0.8, gt=0.0, le=1.0, description="Lowe's ratio for descriptor matches")
+    ransac_reprojection_px: float = Field(2.0, gt=0.0, description="PnP RANSAC inlier threshold")
+    ransac_iterations: int = Field(300, ge=10)
+    min_inliers: int = Field(
+        30, ge=6, description="fewer PnP inliers reject a closure (unrelated places give < 10)"
+    )
+    min_inlier_ratio: float = Field(
+        0.25, ge=0.0, le=1.0, description="inliers / descriptor matches below this reject a closure"
+    )
+    max_distance_m: float = Field(30.0, gt=0.0, description="a measured keyframe farther away is rejected")
+    sigma_floor_xy_m: float = Field(0.05, gt=0.0, description="least position uncertainty of a loop link")
+    sigma_floor_yaw_rad: float = Field(0.005, gt=0.0, description="least heading uncertainty of a loop link")
+    covariance_inflation: float = Field(
+        4.0, ge=1.0, description="factor on the PnP covariance (it ignores feature and depth errors)"
+    )
+    candidates_per_frame: int = Field(2, ge=1, description="candidate vertices measured per frame at most")
+    closure_spacing_m: float = Field(
+        3.0, ge=0.0, description="travel (m) between accepted closures; closer ones add little"
+    )
+    stereo_row_tolerance_px: float = Field(1.5, gt=0.0)
+    stereo_guess_depth_m: float = Field(20.0, gt=0.0, description="depth whose disparity starts stereo KLT")
+    forward_backward_px: float = Field(1.0, gt=0.0, description="max left-right-left KLT error")
+    seed: int = Field(0, description="seeds RANSAC so runs are repeatable")
+
+
+@dataclass(frozen=True)
+class Keyframe:
+    """Stereo features of one frame: pixels (n, 2) float32, ORB descriptors (n, 32) uint8, 3-D points in
+    the camera frame (n, 3) float32 (metres)."""
+
+    pixels_px: np.ndarray
+    descriptors: np.ndarray
+    points_m: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.pixels_px)
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.pixels_px.nbytes + self.descriptors.nbytes + self.points_m.nbytes)
+
+
+def _empty_keyframe() -> Keyframe:
+    return Keyframe(np.zeros((0, 2), np.float32), np.zeros((0, 32), np.uint8), np.zeros((0, 3), np.float32))
+
+
+class KeyframeExtractor:
+    """`KeyframeExtractor(calibration, config)(left, right) -> Keyframe` for a rectified stereo pair."""
+
+    def __init__(self, calibration, config: ClosureConfig | None = None) -> None:
+        self.config = config or ClosureConfig()
+        self.calibration = calibration
+        self.fx, self.fy = float(calibration.fx), float(calibration.fy)
+        self.cx, self.cy = float(calibration.cx), float(calibration.cy)
+        self.baseline_m = float(calibration.baseline_m)
+        if not (self.fx > 0 and self.fy > 0 and self.baseline_m > 0):
+            raise HippoNavError(
+                f"calibration unusable for stereo keyframes: fx={self.fx}, fy={self.fy}, "
+                f"baseline={self.baseline_m} m (need positive focal lengths and baseline)"
+            )
+        width, height = calibration.image_size_px
+        # ORB's descriptor patch and border: 31 px on KITTI-size images, smaller on small renders so that
+        # most rows stay usable (a 96-row image would keep only 34 rows at 31 px).
+        patch = int(np.clip(height // 6, 15, 31)) | 1
+        self._orb = cv2.ORB_create(
+            nfeatures=self.config.orb_features,
+            scaleFactor=1.2,
+            nlevels=4,
+            edgeThreshold=patch,
+            patchSize=patch,
+            fastThreshold=10,
+        )
+        window = int(np.clip(width // 25, 11, 15)) | 1
+        self._klt = {
+            "winSize": (window, window),
+            "maxLevel": 3,
+            "criteria": (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01),
+        }
+
+    def __call__(self, left: np.ndarray, right: np.ndarray) -> Keyframe:
+        cfg = self.config
+        keypoints, descriptors = self._orb.detectAndCompute(left, None)
+        if descriptors is None or len(keypoints) == 0:
+            return _empty_keyframe()
+        pixels = np.float32([k.pt for k in keypoints])
+        response = np.float32([k.response for k in keypoints])
+        guess = pixels.copy()
+        guess[:, 0] -= self.fx * self.baseline_m / cfg.stereo_guess_depth_m
+        flags = cv2.OPTFLOW_USE_INITIAL_FLOW
+        in_right, ok, _ = cv2.calcOpticalFlowPyrLK(left, right, pixels, guess, flags=flags, **self._klt)
+        back, ok_back, _ = cv2.calcOpticalFlowPyrLK(
+            right, left, in_right, pixels.copy(), flags=flags, **self._klt
+        )
+        disparity = pixels[:, 0] - in_right[:, 0]
+        keep = (
+            (ok.ravel() == 1)
+            & (ok_back.ravel() == 1)
+            & (np.linalg.norm(back - pixels, axis=1) < cfg.forward_backward_px)
+            & (np.abs(in_right[:, 1] - pixels[:, 1]) < cfg.stereo_row_tolerance_px)
+            & (disparity > 0.5)
+        )
+        index = np.flatnonzero(keep)
+        index = index[np.argsort(-response[index], kind="stable")[: cfg.keyframe_features]]
+        if index.size == 0:
+            return _empty_keyframe()
+        px = pixels[index]
+        z = self.fx * self.baseline_m / disparity[index].astype(np.float64)
+        points = np.column_stack([(px[:, 0] - self.cx) * z / self.fx, (px[:, 1] - self.cy) * z / self.fy, z])
+        return Keyframe(
+            np.ascontiguousarray(px, dtype=np.float32),
+            np.ascontiguousarray(descriptors[index]),
+            points.astype(np.float32),
+        )

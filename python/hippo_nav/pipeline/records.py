@@ -1,0 +1,110 @@
+"""What a run records: one `FrameRecord` per processed frame, and the `RunResult` it ends with.
+
+Frames: everything the pipeline decided for one camera frame, in the units its name says. Planar poses are
+`(x_m, y_m, yaw_rad)` in the map frame (`hippo_nav.geometry`); `vo_world_from_camera` is the 3-D
+odometry (the built-in VO or a replayed trajectory) chained from the first processed frame.
+`RunRecord.column(name)` (or the attribute of the same name) gives one field over all frames.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+STAGES = ("load", "vo", "views", "engine", "closure", "map", "record")
+"""Per-frame stages whose wall time is measured (seconds per frame in `RunRecord.stage_s`)."""
+
+
+@dataclass(frozen=True)
+class FrameRecord:
+    """One processed frame."""
+
+    frame_index: int  # frame number in the sequence
+    timestamp_s: float
+    vo_world_from_camera: np.ndarray  # (4, 4) odometry pose
+    vo_status: str  # the odometry's status ("ok", "first", "low_texture", "failed", …)
+    motion_flag: str  # "ok", "clamped", "engine_skipped" or "vo:<status>"
+    yaw_rate_rad_s: float  # what the engine integrated
+    speed_m_s: float
+    view_cell: int  # -1: no informative view
+    view_status: str  # "new", "familiar", "uninformative", "none"
+    view_difference: float
+    injection_strength: float
+    heading_rad: float  # HD ring's heading
+    place_code_rad: tuple[float, float]  # place bump on the torus
+    place_position_m: tuple[float, float]  # unwrapped place code
+    vertex: int  # current map vertex (-1 while lost)
+    vertex_created: bool
+    loop_closure: tuple[int, int] | None  # (from, to) of the loop link added this frame
+    closure_note: str  # "" (no attempt), "accepted", or why a candidate closure was not added
+    online_pose: np.ndarray  # (3,) the map's agent pose as the run went
+    vertex_from_agent: np.ndarray  # (3,) offset from the current vertex (NaN while lost)
+
+
+_COLUMNS = {f.name for f in fields(FrameRecord)}
+
+
+@dataclass
+class RunRecord:
+    """Every processed frame, per-stage wall times, and the neural data the figures need."""
+
+    frames: list[FrameRecord] = field(default_factory=list)
+    stage_s: dict[str, list[float]] = field(default_factory=lambda: {s: [] for s in STAGES})
+    # Sub-sampled unit activities for the firing-rate maps: name -> list of (units,) float32 arrays.
+    unit_activity: dict[str, list[np.ndarray]] = field(default_factory=dict)
+    # Full network snapshots at chosen frames: frame position -> dict of arrays and the readout.
+    snapshots: dict[int, dict[str, Any]] = field(default_factory=dict)
+    # The run position (index into `frames`) at which each map vertex was made.
+    vertex_position: dict[int, int] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.frames)
+
+    def append(self, frame: FrameRecord) -> None:
+        self.frames.append(frame)
+
+    def column(self, name: str) -> list[Any]:
+        """One field of every frame, in order."""
+        if name not in _COLUMNS:
+            raise AttributeError(f"FrameRecord has no field {name!r}")
+        return [getattr(f, name) for f in self.frames]
+
+    def __getattr__(self, name: str) -> list[Any]:
+        # Only called for names that are not attributes: the per-frame columns.
+        if name in _COLUMNS:
+            return self.column(name)
+        raise AttributeError(f"{type(self).__name__!s} has no attribute {name!r}")
+
+
+@dataclass
+class RunResult:
+    """What `Pipeline.run` produced; `out_dir` holds the written files (None when not writing).
+
+    3-D trajectories are (n, 4, 4) `world_from_camera` in the camera frame of the first processed frame.
+    The map's and the networks' estimates are planar; their 3-D poses carry the odometry's height,
+    pitch and roll (`hippo_nav.geometry.lift_planar`), so 3-D metrics compare like with like."""
+
+    name: str
+    record: RunRecord
+    metrics: dict[str, Any]
+    vo_world_from_camera: np.ndarray
+    online_world_from_camera: np.ndarray
+    corrected_world_from_camera: np.ndarray
+    neural_world_from_camera: np.ndarray
+    ground_truth: np.ndarray | None  # rebased to the first processed frame
+    map_export: dict[str, np.ndarray]
+    interrupted: bool
+    out_dir: Path | None = None
+
+    @property
+    def estimates(self) -> dict[str, np.ndarray]:
+        """The four trajectories by name."""
+        return {
+            "vo": self.vo_world_from_camera,
+            "online": self.online_world_from_camera,
+            "corrected": self.corrected_world_from_camera,
+            "neural": self.neural_world_from_camera,
+        }
