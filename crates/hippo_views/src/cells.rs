@@ -196,17 +196,54 @@ impl ViewCells {
     /// provably cannot match or beat a difference some template really has.
     pub fn best_match(&self, template: &[f32]) -> Result<Option<ViewMatch>, ViewError> {
         let q = self.check(template)?;
-        let n = self.len();
+        let all: Vec<usize> = (0..self.len()).collect();
+        Ok(self.search(template, &q, &all))
+    }
+
+    /// The closest template among the cells `candidates` only (ties: lowest id), or `None` when the set
+    /// is empty: the same search as [`best_match`](Self::best_match), so the same answer as brute force
+    /// over those cells, at a cost that grows with the number of candidates instead of the store (e.g.
+    /// the cells whose stored place lies near the current estimate). Duplicate ids are allowed; an id of
+    /// no stored cell is an error ([`ViewError::UnknownCandidate`]).
+    pub fn best_match_among(
+        &self,
+        template: &[f32],
+        candidates: &[usize],
+    ) -> Result<Option<ViewMatch>, ViewError> {
+        let q = self.check(template)?;
+        let ids = self.candidate_ids(candidates)?;
+        Ok(self.search(template, &q, &ids))
+    }
+
+    /// Candidate ids sorted and deduplicated (so ties still go to the lowest id), each checked.
+    fn candidate_ids(&self, candidates: &[usize]) -> Result<Vec<usize>, ViewError> {
+        let count = self.len();
+        if let Some((position, &id)) = candidates.iter().enumerate().find(|(_, &id)| id >= count) {
+            return Err(ViewError::UnknownCandidate {
+                id,
+                position,
+                count,
+            });
+        }
+        let mut ids = candidates.to_vec();
+        ids.sort_unstable();
+        ids.dedup();
+        Ok(ids)
+    }
+
+    /// Pruned exact search over `ids` (sorted, unique, all stored; see `best_match`).
+    fn search(&self, template: &[f32], q: &Summary, ids: &[usize]) -> Option<ViewMatch> {
+        let n = ids.len();
         if n == 0 {
-            return Ok(None);
+            return None;
         }
         let p = &self.params;
+        // Entries are (key, position in `ids`); ids are sorted, so position order is id order.
         let by_key = |a: &(f32, usize), b: &(f32, usize)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
-        let keys: Vec<f32> = self
-            .summaries
+        let keys: Vec<f32> = ids
             .par_iter()
             .with_min_len(256)
-            .map(|s| rank_key(&q, s, p.width_px, p.max_shift_px))
+            .map(|&id| rank_key(q, &self.summaries[id], p.width_px, p.max_shift_px))
             .collect();
         let mut order: Vec<(f32, usize)> = keys.iter().copied().zip(0..).collect();
         let k = seed_count(n);
@@ -218,27 +255,27 @@ impl ViewCells {
 
         let beat = AtomicU32::new(f32::INFINITY.to_bits());
         let mut seeded = vec![false; n];
-        for &(_, id) in &order {
-            seeded[id] = true;
+        for &(_, i) in &order {
+            seeded[i] = true;
         }
         // The most likely template alone, so that the other seeds can already be pruned against it.
-        let first = self.visit(template, &q, order[0].1, order[0].0, &beat);
+        let first = self.visit(template, q, ids[order[0].1], order[0].0, &beat);
         let seeds = order[1..]
             .par_iter()
-            .filter_map(|&(key, id)| self.visit(template, &q, id, key, &beat))
+            .filter_map(|&(key, i)| self.visit(template, q, ids[i], key, &beat))
             .reduce_with(better);
         let rest = (0..n)
             .into_par_iter()
             .with_min_len(32)
-            .filter(|&id| !seeded[id])
-            .filter_map(|id| self.visit(template, &q, id, keys[id], &beat))
+            .filter(|&i| !seeded[i])
+            .filter_map(|i| self.visit(template, q, ids[i], keys[i], &beat))
             .reduce_with(better);
         let best = [first, seeds, rest].into_iter().flatten().reduce(better);
-        Ok(best.map(|(d, id, s)| ViewMatch {
+        best.map(|(d, id, s)| ViewMatch {
             cell_id: id,
             difference: d,
             shift_px: s as i32,
-        }))
+        })
     }
 
     /// Reference search: every template, every shift, no pruning (for tests and benchmarks).
@@ -270,7 +307,31 @@ impl ViewCells {
 
     /// Match a view and create a cell when it is novel (SPEC §7).
     pub fn observe(&mut self, template: &[f32]) -> Result<ViewObservation, ViewError> {
+        self.observe_in(template, None)
+    }
+
+    /// [`observe`](Self::observe) with the match restricted to the cells `candidates`: familiar when the
+    /// best difference among them is below the novelty threshold, otherwise a new cell is created (also
+    /// when the set is empty); an uninformative template changes nothing. Candidate ids are checked (see
+    /// [`best_match_among`](Self::best_match_among)) before anything is stored.
+    pub fn observe_among(
+        &mut self,
+        template: &[f32],
+        candidates: &[usize],
+    ) -> Result<ViewObservation, ViewError> {
+        self.observe_in(template, Some(candidates))
+    }
+
+    fn observe_in(
+        &mut self,
+        template: &[f32],
+        candidates: Option<&[usize]>,
+    ) -> Result<ViewObservation, ViewError> {
         let q = self.check(template)?;
+        let ids = match candidates {
+            Some(c) => self.candidate_ids(c)?,
+            None => (0..self.len()).collect(),
+        };
         if q.texture < self.params.min_texture {
             return Ok(ViewObservation {
                 status: ViewStatus::Uninformative,
@@ -280,7 +341,7 @@ impl ViewCells {
                 relative_heading_rad: 0.0,
             });
         }
-        let best = self.best_match(template)?;
+        let best = self.search(template, &q, &ids);
         let rad_per_px = self.params.heading_rad_per_px();
         match best {
             Some(m) if m.difference < self.params.novelty_threshold => Ok(ViewObservation {
@@ -291,10 +352,11 @@ impl ViewCells {
                 relative_heading_rad: f64::from(m.shift_px) * rad_per_px,
             }),
             _ => {
-                let id = self.add(template)?;
+                self.templates.extend_from_slice(template);
+                self.summaries.push(q);
                 Ok(ViewObservation {
                     status: ViewStatus::New,
-                    cell_id: Some(id),
+                    cell_id: Some(self.len() - 1),
                     difference: best.map_or(1.0, |m| m.difference),
                     shift_px: 0,
                     relative_heading_rad: 0.0,
