@@ -240,19 +240,17 @@ impl PyViewCells {
     ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
         let p = self.cells.params();
         let t = self.cells.template(cell_id).map_err(to_py_err)?;
-        t.to_vec()
-            .into_pyarray(py)
-            .reshape(vec![p.height_px, p.width_px])
+        t.into_pyarray(py).reshape(vec![p.height_px, p.width_px])
     }
 
     /// Every stored template, shape (len, height, width).
     fn templates<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
         let p = self.cells.params();
-        self.cells
-            .templates()
-            .to_vec()
-            .into_pyarray(py)
-            .reshape(vec![self.cells.len(), p.height_px, p.width_px])
+        self.cells.templates().into_pyarray(py).reshape(vec![
+            self.cells.len(),
+            p.height_px,
+            p.width_px,
+        ])
     }
 }
 

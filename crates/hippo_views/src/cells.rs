@@ -1,5 +1,7 @@
 //! The store of view cells and the search for the best-matching one.
-use crate::compare::{best_shift, coarse_exceeds, rank_key, summarise, Summary};
+use crate::compare::{
+    best_shift, coarse_exceeds, rank_key, summarise, to_column_major, to_row_major, Summary,
+};
 use crate::error::ViewError;
 use crate::params::ViewCellParams;
 use rayon::prelude::*;
@@ -55,10 +57,17 @@ pub struct ViewObservation {
     pub relative_heading_rad: f64,
 }
 
+/// A checked query: its template column-major (as stored) and its summary.
+struct Query {
+    columns: Vec<f32>,
+    summary: Summary,
+}
+
 /// Local view cells: one stored template per cell, in contiguous memory, ids in creation order.
 #[derive(Debug, Clone)]
 pub struct ViewCells {
     params: ViewCellParams,
+    /// Every template column-major (see `compare`), cell after cell.
     templates: Vec<f32>,
     summaries: Vec<Summary>,
 }
@@ -86,24 +95,28 @@ impl ViewCells {
         self.summaries.is_empty()
     }
 
-    /// Stored template of cell `id` (row-major height × width).
-    pub fn template(&self, id: usize) -> Result<&[f32], ViewError> {
-        let n = self.params.template_len();
+    /// Stored template of cell `id` (row-major height × width; a copy, as cells store them column-major).
+    pub fn template(&self, id: usize) -> Result<Vec<f32>, ViewError> {
         if id >= self.len() {
             return Err(ViewError::UnknownCell {
                 id,
                 count: self.len(),
             });
         }
-        Ok(&self.templates[id * n..(id + 1) * n])
+        let p = &self.params;
+        Ok(to_row_major(self.stored(id), p.width_px, p.height_px))
     }
 
-    /// All templates, cell after cell (len × height × width), e.g. to save them.
-    pub fn templates(&self) -> &[f32] {
-        &self.templates
+    /// All templates, cell after cell (len × height × width, each row-major), e.g. to save them.
+    pub fn templates(&self) -> Vec<f32> {
+        let p = &self.params;
+        self.templates
+            .chunks_exact(p.template_len())
+            .flat_map(|t| to_row_major(t, p.width_px, p.height_px))
+            .collect()
     }
 
-    fn check(&self, t: &[f32]) -> Result<Summary, ViewError> {
+    fn check(&self, t: &[f32]) -> Result<Query, ViewError> {
         let p = &self.params;
         if t.len() != p.template_len() {
             return Err(ViewError::BadTemplateSize {
@@ -120,15 +133,21 @@ impl ViewCells {
                 value: t[i],
             });
         }
-        Ok(summarise(t, p.width_px, p.height_px, p.coarse_rows))
+        let columns = to_column_major(t, p.width_px, p.height_px);
+        let summary = summarise(&columns, p.width_px, p.height_px, p.coarse_rows);
+        Ok(Query { columns, summary })
+    }
+
+    fn store(&mut self, q: Query) -> usize {
+        self.templates.extend_from_slice(&q.columns);
+        self.summaries.push(q.summary);
+        self.len() - 1
     }
 
     /// Store a template as a new cell (no matching) and return its id; e.g. to restore a saved map.
     pub fn add(&mut self, template: &[f32]) -> Result<usize, ViewError> {
-        let summary = self.check(template)?;
-        self.templates.extend_from_slice(template);
-        self.summaries.push(summary);
-        Ok(self.len() - 1)
+        let q = self.check(template)?;
+        Ok(self.store(q))
     }
 
     fn stored(&self, id: usize) -> &[f32] {
@@ -197,7 +216,7 @@ impl ViewCells {
     pub fn best_match(&self, template: &[f32]) -> Result<Option<ViewMatch>, ViewError> {
         let q = self.check(template)?;
         let all: Vec<usize> = (0..self.len()).collect();
-        Ok(self.search(template, &q, &all))
+        Ok(self.search(&q, &all))
     }
 
     /// The closest template among the cells `candidates` only (ties: lowest id), or `None` when the set
@@ -212,7 +231,7 @@ impl ViewCells {
     ) -> Result<Option<ViewMatch>, ViewError> {
         let q = self.check(template)?;
         let ids = self.candidate_ids(candidates)?;
-        Ok(self.search(template, &q, &ids))
+        Ok(self.search(&q, &ids))
     }
 
     /// Candidate ids sorted and deduplicated (so ties still go to the lowest id), each checked.
@@ -232,7 +251,8 @@ impl ViewCells {
     }
 
     /// Pruned exact search over `ids` (sorted, unique, all stored; see `best_match`).
-    fn search(&self, template: &[f32], q: &Summary, ids: &[usize]) -> Option<ViewMatch> {
+    fn search(&self, query: &Query, ids: &[usize]) -> Option<ViewMatch> {
+        let (template, q) = (query.columns.as_slice(), &query.summary);
         let n = ids.len();
         if n == 0 {
             return None;
@@ -299,7 +319,7 @@ impl ViewCells {
         Ok((0..self.len())
             .into_par_iter()
             .map(|id| {
-                self.exact(template, &q, id, f32::INFINITY)
+                self.exact(&q.columns, &q.summary, id, f32::INFINITY)
                     .map_or((1.0, 0), |(d, s)| (d, s as i32))
             })
             .collect())
@@ -332,7 +352,7 @@ impl ViewCells {
             Some(c) => self.candidate_ids(c)?,
             None => (0..self.len()).collect(),
         };
-        if q.texture < self.params.min_texture {
+        if q.summary.texture < self.params.min_texture {
             return Ok(ViewObservation {
                 status: ViewStatus::Uninformative,
                 cell_id: None,
@@ -341,7 +361,7 @@ impl ViewCells {
                 relative_heading_rad: 0.0,
             });
         }
-        let best = self.search(template, &q, &ids);
+        let best = self.search(&q, &ids);
         let rad_per_px = self.params.heading_rad_per_px();
         match best {
             Some(m) if m.difference < self.params.novelty_threshold => Ok(ViewObservation {
@@ -352,11 +372,10 @@ impl ViewCells {
                 relative_heading_rad: f64::from(m.shift_px) * rad_per_px,
             }),
             _ => {
-                self.templates.extend_from_slice(template);
-                self.summaries.push(q);
+                let id = self.store(q);
                 Ok(ViewObservation {
                     status: ViewStatus::New,
-                    cell_id: Some(self.len() - 1),
+                    cell_id: Some(id),
                     difference: best.map_or(1.0, |m| m.difference),
                     shift_px: 0,
                     relative_heading_rad: 0.0,

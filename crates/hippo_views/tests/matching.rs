@@ -66,7 +66,7 @@ fn shift_is_recovered_and_gives_counter_clockwise_heading() {
     let p = params();
     for shift in [-6isize, -2, 3, 7] {
         let (mut cells, mut rng) = cells_with(30, 3);
-        let q = shifted(cells.template(5).unwrap(), &p, shift, &mut rng);
+        let q = shifted(&cells.template(5).unwrap(), &p, shift, &mut rng);
         let obs = cells.observe(&q).unwrap();
         assert_eq!(obs.status, ViewStatus::Familiar);
         assert_eq!(obs.cell_id, Some(5));
@@ -280,7 +280,7 @@ fn restricted_search_equals_brute_force_over_the_subset() {
             1 => dup.clone(),
             _ => {
                 let mut q = shifted(
-                    cells.template(target).unwrap(),
+                    &cells.template(target).unwrap(),
                     &p,
                     (k as isize % 7) - 3,
                     &mut rng,
@@ -337,7 +337,7 @@ fn restricted_search_equals_brute_force_over_the_subset() {
 fn restricted_observe_is_familiar_only_within_the_subset() {
     let p = params();
     let (mut cells, mut rng) = cells_with(50, 12);
-    let q = shifted(cells.template(7).unwrap(), &p, 2, &mut rng);
+    let q = shifted(&cells.template(7).unwrap(), &p, 2, &mut rng);
     let obs = cells.observe_among(&q, &[3, 7, 7, 20]).unwrap();
     assert_eq!(
         (obs.status, obs.cell_id, obs.shift_px),
