@@ -9,6 +9,10 @@ KITTI frame scores ≈ 0.6 and the same frame at 1/12 of its brightness 0.27). T
 removes exposure and large-scale illumination changes. Matching uses the normalised difference of
 `hippo_views::compare` (0 identical, ≈0.7 unrelated, ≤ 1), so one `novelty_threshold` serves every dataset.
 
+`observe` and `best_match` take `candidates`, a set of cell ids to match against instead of every cell (e.g.
+the cells stored near the current place estimate): the answer is exactly the exhaustive one over that
+subset, at a cost that does not grow with the store.
+
 Relative heading: a positive `shift_px` (scene moved right) means the camera has turned counter-clockwise
 since the cell was stored, by `shift_px · field_of_view_rad / width_px`.
 """
