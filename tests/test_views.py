@@ -141,6 +141,70 @@ def test_pruned_search_equals_brute_force() -> None:
     assert ViewCells().best_match(base[0]) is None
 
 
+def test_restricted_search_is_exact_within_the_candidates() -> None:
+    """`candidates` restricts the search: the answer is brute force over those cells (via `differences`)."""
+    rng = np.random.default_rng(11)
+    cells = ViewCells()
+    base = [cells.template_from_image(textured_image(200 + k, (120, 400))) for k in range(60)]
+    for t in base:
+        cells.add(t)
+    d_all = {}
+    for k in range(12):
+        q = base[(7 * k) % 60] + rng.normal(scale=0.4, size=base[0].shape).astype(np.float32)
+        d_all[k] = cells.differences(q)[0]
+        subset = rng.choice(60, size=1 + (5 * k) % 25, replace=False)
+        ids = np.r_[subset, subset[: len(subset) // 2]]  # duplicates are fine
+        got = cells.best_match(q, ids)
+        assert got is not None
+        want = int(subset[np.argmin(d_all[k][subset])])
+        if d_all[k][subset].tolist().count(d_all[k][want]) == 1:
+            assert got[0] == want
+        assert got[1] == pytest.approx(float(d_all[k][subset].min()), abs=1e-6)
+        # Any integer sequence or array layout gives the same answer.
+        assert cells.best_match(q, ids.tolist()) == got
+        assert cells.best_match(q, ids.astype(np.int32)[::-1]) == got
+        assert cells.best_match(q, np.repeat(ids, 2)[::2].astype(np.uint64)) == got
+    q = base[9]
+    assert cells.best_match(q, None) == cells.best_match(q) == (9, 0.0, 0)
+    assert cells.best_match(q, []) is None
+    assert cells.best_match(q, np.arange(60)) == cells.best_match(q)
+
+
+def test_restricted_observe_is_familiar_only_among_the_candidates() -> None:
+    cells = ViewCells()
+    for seed in range(300, 310):
+        cells.observe(cells.template_from_image(textured_image(seed, (120, 400))))
+    revisit = cells.template_from_image(textured_image(304, (120, 400)))
+    obs = cells.observe(revisit, candidates=[1, 4, 4, 8])
+    assert (obs.status, obs.cell_id) == ("familiar", 4)
+    assert len(cells) == 10
+    # Without its own cell among the candidates the view is novel there: a new cell is made for it.
+    obs = cells.observe(revisit, candidates=np.array([0, 1, 2]))
+    assert (obs.status, obs.cell_id) == ("new", 10) and obs.difference > cells.config.novelty_threshold
+    obs = cells.observe(revisit, candidates=[])
+    assert (obs.status, obs.cell_id, obs.difference) == ("new", 11, 1.0)
+    blank = cells.observe(np.zeros((24, 64), np.float32), candidates=[0])
+    assert blank.status == "uninformative" and len(cells) == 12
+
+
+def test_bad_candidates_raise_clear_errors_and_store_nothing() -> None:
+    cells = ViewCells()
+    t = cells.template_from_image(textured_image(400, (120, 400)))
+    cells.add(t)
+    other = cells.template_from_image(textured_image(401, (120, 400)))
+    with pytest.raises(HippoNavError, match="candidate 1 is view cell 5, which does not exist"):
+        cells.observe(other, candidates=[0, 5])
+    with pytest.raises(HippoNavError, match="candidate 2 is -1: view-cell ids are ≥ 0"):
+        cells.best_match(other, np.array([0, 0, -1]))
+    with pytest.raises(HippoNavError, match="must be integers"):
+        cells.best_match(other, [0.0, 1.5])
+    with pytest.raises(HippoNavError, match="1-D"):
+        cells.observe(other, candidates=np.zeros((2, 2), np.int64))
+    with pytest.raises(HippoNavError, match="does not exist"):
+        cells.observe(other, candidates=np.array([2**64 - 1], np.uint64))
+    assert len(cells) == 1
+
+
 def test_templates_round_trip_through_add() -> None:
     cells = ViewCells()
     for seed in range(30, 36):

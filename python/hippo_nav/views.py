@@ -9,6 +9,10 @@ KITTI frame scores ≈ 0.6 and the same frame at 1/12 of its brightness 0.27). T
 removes exposure and large-scale illumination changes. Matching uses the normalised difference of
 `hippo_views::compare` (0 identical, ≈0.7 unrelated, ≤ 1), so one `novelty_threshold` serves every dataset.
 
+`observe` and `best_match` take `candidates`, a set of cell ids to match against instead of every cell (e.g.
+the cells stored near the current place estimate): the answer is exactly the exhaustive one over that
+subset, at a cost that does not grow with the store.
+
 Relative heading: a positive `shift_px` (scene moved right) means the camera has turned counter-clockwise
 since the cell was stored, by `shift_px · field_of_view_rad / width_px`.
 """
@@ -21,6 +25,7 @@ from typing import Any
 
 import cv2
 import numpy as np
+from numpy.typing import ArrayLike
 from pydantic import BaseModel, ConfigDict
 
 from hippo_nav import _core
@@ -100,13 +105,21 @@ class ViewCells:
         std = np.sqrt(np.maximum(mean_sq - mean * mean, 0.0) + _NOISE_FLOOR_GREY**2)
         return ((small - mean) / std).astype(np.float32)
 
-    def observe(self, template: np.ndarray) -> ViewObservation:
-        """Match a template; a novel one becomes a new cell (status 'new'), a blank one is 'uninformative'."""
-        return self._cells.observe(_as_float(template))
+    def observe(self, template: np.ndarray, candidates: ArrayLike | None = None) -> ViewObservation:
+        """Match a template; a novel one becomes a new cell (status 'new'), a blank one is 'uninformative'.
 
-    def best_match(self, template: np.ndarray) -> tuple[int, float, int] | None:
-        """(cell_id, difference, shift_px) of the closest stored cell, without storing anything."""
-        return self._cells.best_match(_as_float(template))
+        `candidates` restricts the match to those cell ids (e.g. the cells stored near the current place
+        estimate): the view is familiar only if one of them is below the novelty threshold, otherwise it
+        becomes a new cell. None matches against every cell. Duplicates are fine; an unknown id raises.
+        """
+        return self._cells.observe(_as_float(template), _as_ids(candidates))
+
+    def best_match(
+        self, template: np.ndarray, candidates: ArrayLike | None = None
+    ) -> tuple[int, float, int] | None:
+        """(cell_id, difference, shift_px) of the closest stored cell (among `candidates` if given: None =
+        every cell), without storing anything; None when there is nothing to match."""
+        return self._cells.best_match(_as_float(template), _as_ids(candidates))
 
     def differences(self, template: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Difference and best shift against every cell, in id order."""
@@ -119,6 +132,22 @@ class ViewCells:
     def templates(self) -> np.ndarray:
         """Every stored template, shape (len, height_px, width_px)."""
         return self._cells.templates()
+
+
+def _as_ids(candidates: ArrayLike | None) -> np.ndarray | None:
+    """Candidate cell ids as a 1-D int64 array (any integer sequence or array; None passes through)."""
+    if candidates is None:
+        return None
+    ids = np.asarray(candidates)
+    if ids.ndim != 1:
+        raise HippoNavError(f"candidates must be a 1-D sequence of cell ids, got shape {ids.shape}")
+    if ids.size == 0:
+        return np.empty(0, np.int64)
+    if not np.issubdtype(ids.dtype, np.integer):
+        raise HippoNavError(f"candidate cell ids must be integers, got dtype {ids.dtype}")
+    if ids.dtype == np.uint64 and ids.max() > np.iinfo(np.int64).max:
+        raise HippoNavError(f"candidate cell id {int(ids.max())} does not exist")
+    return ids.astype(np.int64, copy=False)
 
 
 def _as_float(template: np.ndarray) -> np.ndarray:

@@ -7,6 +7,11 @@ cell at every shift); compare within one group (`views_1000`, `views_10000`) for
 `revisit` (a noisy copy of one stored template, the loop-closure case: the match is found early and prunes
 the rest) and `novel` (an unrelated view, the worst case for pruning). Both searches return the same answer
 (checked before timing).
+
+`test_restricted_match`: the same pruned search over every cell (`full`) against a 200-cell subset
+(`candidates=`, e.g. the cells stored near the current place estimate, the target among them for a
+revisit), with 1 000 and 5 000 stored cells; each group (`views_among_<n>_<query>`) shows the ratio. The
+subset's cost does not grow with the store, which is what keeps a long run's per-frame cost flat.
 """
 
 from __future__ import annotations
@@ -18,6 +23,8 @@ from hippo_nav import _core
 from hippo_nav.views import ViewCells
 
 SIZES = (1_000, 10_000)
+RESTRICTED_SIZES = (1_000, 5_000)
+SUBSET = 200
 
 
 def _random_templates(cells: ViewCells, n: int, rng: np.random.Generator) -> np.ndarray:
@@ -63,3 +70,40 @@ def test_best_match(benchmark, stores, n: int, query: str, search: str) -> None:
     benchmark.extra_info.update(stored=n, query=query, cell_id=fast[0], difference=float(fast[1]))
     fn = cells.best_match if search == "pruned" else core.best_match_brute_force
     benchmark(fn, q)
+
+
+@pytest.fixture(scope="module")
+def restricted_stores() -> dict[int, tuple[ViewCells, dict[str, np.ndarray], np.ndarray]]:
+    rng = np.random.default_rng(1)
+    result = {}
+    for n in RESTRICTED_SIZES:
+        cells = ViewCells()
+        templates = _random_templates(cells, n, rng)
+        for t in templates:
+            cells.add(t)
+        target = n // 3
+        revisit = templates[target] + rng.normal(scale=0.3, size=templates[0].shape).astype(np.float32)
+        novel = _random_templates(cells, 1, rng)[0]
+        others = rng.choice(np.delete(np.arange(n), target), size=SUBSET - 1, replace=False)
+        subset = np.sort(np.r_[others, target]).astype(np.int64)
+        result[n] = (cells, {"revisit": revisit, "novel": novel}, subset)
+    return result
+
+
+@pytest.mark.parametrize("query", ["revisit", "novel"])
+@pytest.mark.parametrize("n", RESTRICTED_SIZES)
+@pytest.mark.parametrize("search", ["full", f"subset{SUBSET}"])
+def test_restricted_match(benchmark, restricted_stores, n: int, query: str, search: str) -> None:
+    benchmark.group = f"views_among_{n}_{query}"
+    cells, queries, subset = restricted_stores[n]
+    q = queries[query]
+    d = cells.differences(q)[0]
+    got = cells.best_match(q, subset)
+    assert got is not None and got[1] == pytest.approx(float(d[subset].min()), abs=1e-6)
+    if query == "revisit":
+        assert got[0] == n // 3 == cells.best_match(q)[0]  # type: ignore[index]
+    candidates = None if search == "full" else subset
+    benchmark.extra_info.update(
+        stored=n, query=query, candidates=len(subset) if candidates is not None else n
+    )
+    benchmark(cells.best_match, q, candidates)

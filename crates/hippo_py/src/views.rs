@@ -6,7 +6,8 @@
 use crate::errors::{to_py_err, HippoNavError};
 use hippo_views::{ViewCellParams, ViewCells, ViewObservation, ViewStatus};
 use numpy::{
-    IntoPyArray, PyArray1, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArrayMethods,
+    IntoPyArray, PyArray1, PyArrayDyn, PyArrayMethods, PyReadonlyArray1, PyReadonlyArrayDyn,
+    PyUntypedArrayMethods,
 };
 use pyo3::prelude::*;
 
@@ -34,6 +35,41 @@ fn template_vec(t: &TemplateArg<'_>, p: &ViewCellParams) -> PyResult<Vec<f32>> {
         TemplateArg::F32(a) => a.as_array().iter().copied().collect(),
         TemplateArg::F64(a) => a.as_array().iter().map(|&v| v as f32).collect(),
     })
+}
+
+/// Candidate cell ids as given: a 1-D integer array (int64, int32, uint64) of any layout, or any sequence
+/// of ints.
+#[derive(FromPyObject)]
+enum CandidatesArg<'py> {
+    I64(PyReadonlyArray1<'py, i64>),
+    I32(PyReadonlyArray1<'py, i32>),
+    U64(PyReadonlyArray1<'py, u64>),
+    Seq(Vec<i64>),
+}
+
+/// Candidate ids as `usize`; a negative id is refused here (the core checks the upper end).
+fn candidate_ids(c: &CandidatesArg<'_>) -> PyResult<Vec<usize>> {
+    let signed = |v: &mut dyn Iterator<Item = i64>| -> PyResult<Vec<usize>> {
+        v.enumerate()
+            .map(|(position, id)| {
+                usize::try_from(id).map_err(|_| {
+                    HippoNavError::new_err(format!(
+                        "candidate {position} is {id}: view-cell ids are ≥ 0"
+                    ))
+                })
+            })
+            .collect()
+    };
+    match c {
+        CandidatesArg::I64(a) => signed(&mut a.as_array().iter().copied()),
+        CandidatesArg::I32(a) => signed(&mut a.as_array().iter().map(|&v| i64::from(v))),
+        CandidatesArg::U64(a) => Ok(a
+            .as_array()
+            .iter()
+            .map(|&v| usize::try_from(v).unwrap_or(usize::MAX))
+            .collect()),
+        CandidatesArg::Seq(v) => signed(&mut v.iter().copied()),
+    }
 }
 
 /// What one observation did (see `hippo_views::ViewObservation`).
@@ -120,15 +156,24 @@ impl PyViewCells {
         self.cells.len()
     }
 
-    /// Match a (height, width) template; store it as a new cell when it is novel.
+    /// Match a (height, width) template; store it as a new cell when it is novel. `candidates`: cell ids
+    /// to match against (None = every cell).
+    #[pyo3(signature = (template, candidates=None))]
     fn observe(
         &mut self,
         py: Python<'_>,
         template: TemplateArg<'_>,
+        candidates: Option<CandidatesArg<'_>>,
     ) -> PyResult<PyViewObservation> {
         let t = template_vec(&template, self.cells.params())?;
+        let ids = candidates.as_ref().map(candidate_ids).transpose()?;
         let cells = &mut self.cells;
-        let inner = py.detach(|| cells.observe(&t)).map_err(to_py_err)?;
+        let inner = py
+            .detach(|| match &ids {
+                None => cells.observe(&t),
+                Some(ids) => cells.observe_among(&t, ids),
+            })
+            .map_err(to_py_err)?;
         Ok(PyViewObservation { inner })
     }
 
@@ -138,15 +183,24 @@ impl PyViewCells {
         self.cells.add(&t).map_err(to_py_err)
     }
 
-    /// Best stored cell: (cell_id, difference, shift_px), or None when no cell is stored.
+    /// Best stored cell: (cell_id, difference, shift_px), or None when there is none to match.
+    /// `candidates`: cell ids to search (None = every cell).
+    #[pyo3(signature = (template, candidates=None))]
     fn best_match(
         &self,
         py: Python<'_>,
         template: TemplateArg<'_>,
+        candidates: Option<CandidatesArg<'_>>,
     ) -> PyResult<Option<(usize, f32, i32)>> {
         let t = template_vec(&template, self.cells.params())?;
+        let ids = candidates.as_ref().map(candidate_ids).transpose()?;
         let cells = &self.cells;
-        let m = py.detach(|| cells.best_match(&t)).map_err(to_py_err)?;
+        let m = py
+            .detach(|| match &ids {
+                None => cells.best_match(&t),
+                Some(ids) => cells.best_match_among(&t, ids),
+            })
+            .map_err(to_py_err)?;
         Ok(m.map(|m| (m.cell_id, m.difference, m.shift_px)))
     }
 
@@ -186,19 +240,17 @@ impl PyViewCells {
     ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
         let p = self.cells.params();
         let t = self.cells.template(cell_id).map_err(to_py_err)?;
-        t.to_vec()
-            .into_pyarray(py)
-            .reshape(vec![p.height_px, p.width_px])
+        t.into_pyarray(py).reshape(vec![p.height_px, p.width_px])
     }
 
     /// Every stored template, shape (len, height, width).
     fn templates<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
         let p = self.cells.params();
-        self.cells
-            .templates()
-            .to_vec()
-            .into_pyarray(py)
-            .reshape(vec![self.cells.len(), p.height_px, p.width_px])
+        self.cells.templates().into_pyarray(py).reshape(vec![
+            self.cells.len(),
+            p.height_px,
+            p.width_px,
+        ])
     }
 }
 

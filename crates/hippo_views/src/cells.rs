@@ -1,5 +1,7 @@
 //! The store of view cells and the search for the best-matching one.
-use crate::compare::{best_shift, coarse_exceeds, rank_key, summarise, Summary};
+use crate::compare::{
+    best_shift, coarse_exceeds, rank_key, summarise, to_column_major, to_row_major, Summary,
+};
 use crate::error::ViewError;
 use crate::params::ViewCellParams;
 use rayon::prelude::*;
@@ -55,10 +57,17 @@ pub struct ViewObservation {
     pub relative_heading_rad: f64,
 }
 
+/// A checked query: its template column-major (as stored) and its summary.
+struct Query {
+    columns: Vec<f32>,
+    summary: Summary,
+}
+
 /// Local view cells: one stored template per cell, in contiguous memory, ids in creation order.
 #[derive(Debug, Clone)]
 pub struct ViewCells {
     params: ViewCellParams,
+    /// Every template column-major (see `compare`), cell after cell.
     templates: Vec<f32>,
     summaries: Vec<Summary>,
 }
@@ -86,24 +95,28 @@ impl ViewCells {
         self.summaries.is_empty()
     }
 
-    /// Stored template of cell `id` (row-major height × width).
-    pub fn template(&self, id: usize) -> Result<&[f32], ViewError> {
-        let n = self.params.template_len();
+    /// Stored template of cell `id` (row-major height × width; a copy, as cells store them column-major).
+    pub fn template(&self, id: usize) -> Result<Vec<f32>, ViewError> {
         if id >= self.len() {
             return Err(ViewError::UnknownCell {
                 id,
                 count: self.len(),
             });
         }
-        Ok(&self.templates[id * n..(id + 1) * n])
+        let p = &self.params;
+        Ok(to_row_major(self.stored(id), p.width_px, p.height_px))
     }
 
-    /// All templates, cell after cell (len × height × width), e.g. to save them.
-    pub fn templates(&self) -> &[f32] {
-        &self.templates
+    /// All templates, cell after cell (len × height × width, each row-major), e.g. to save them.
+    pub fn templates(&self) -> Vec<f32> {
+        let p = &self.params;
+        self.templates
+            .chunks_exact(p.template_len())
+            .flat_map(|t| to_row_major(t, p.width_px, p.height_px))
+            .collect()
     }
 
-    fn check(&self, t: &[f32]) -> Result<Summary, ViewError> {
+    fn check(&self, t: &[f32]) -> Result<Query, ViewError> {
         let p = &self.params;
         if t.len() != p.template_len() {
             return Err(ViewError::BadTemplateSize {
@@ -120,15 +133,21 @@ impl ViewCells {
                 value: t[i],
             });
         }
-        Ok(summarise(t, p.width_px, p.height_px, p.coarse_rows))
+        let columns = to_column_major(t, p.width_px, p.height_px);
+        let summary = summarise(&columns, p.width_px, p.height_px, p.coarse_rows);
+        Ok(Query { columns, summary })
+    }
+
+    fn store(&mut self, q: Query) -> usize {
+        self.templates.extend_from_slice(&q.columns);
+        self.summaries.push(q.summary);
+        self.len() - 1
     }
 
     /// Store a template as a new cell (no matching) and return its id; e.g. to restore a saved map.
     pub fn add(&mut self, template: &[f32]) -> Result<usize, ViewError> {
-        let summary = self.check(template)?;
-        self.templates.extend_from_slice(template);
-        self.summaries.push(summary);
-        Ok(self.len() - 1)
+        let q = self.check(template)?;
+        Ok(self.store(q))
     }
 
     fn stored(&self, id: usize) -> &[f32] {
@@ -196,17 +215,55 @@ impl ViewCells {
     /// provably cannot match or beat a difference some template really has.
     pub fn best_match(&self, template: &[f32]) -> Result<Option<ViewMatch>, ViewError> {
         let q = self.check(template)?;
-        let n = self.len();
+        let all: Vec<usize> = (0..self.len()).collect();
+        Ok(self.search(&q, &all))
+    }
+
+    /// The closest template among the cells `candidates` only (ties: lowest id), or `None` when the set
+    /// is empty: the same search as [`best_match`](Self::best_match), so the same answer as brute force
+    /// over those cells, at a cost that grows with the number of candidates instead of the store (e.g.
+    /// the cells whose stored place lies near the current estimate). Duplicate ids are allowed; an id of
+    /// no stored cell is an error ([`ViewError::UnknownCandidate`]).
+    pub fn best_match_among(
+        &self,
+        template: &[f32],
+        candidates: &[usize],
+    ) -> Result<Option<ViewMatch>, ViewError> {
+        let q = self.check(template)?;
+        let ids = self.candidate_ids(candidates)?;
+        Ok(self.search(&q, &ids))
+    }
+
+    /// Candidate ids sorted and deduplicated (so ties still go to the lowest id), each checked.
+    fn candidate_ids(&self, candidates: &[usize]) -> Result<Vec<usize>, ViewError> {
+        let count = self.len();
+        if let Some((position, &id)) = candidates.iter().enumerate().find(|(_, &id)| id >= count) {
+            return Err(ViewError::UnknownCandidate {
+                id,
+                position,
+                count,
+            });
+        }
+        let mut ids = candidates.to_vec();
+        ids.sort_unstable();
+        ids.dedup();
+        Ok(ids)
+    }
+
+    /// Pruned exact search over `ids` (sorted, unique, all stored; see `best_match`).
+    fn search(&self, query: &Query, ids: &[usize]) -> Option<ViewMatch> {
+        let (template, q) = (query.columns.as_slice(), &query.summary);
+        let n = ids.len();
         if n == 0 {
-            return Ok(None);
+            return None;
         }
         let p = &self.params;
+        // Entries are (key, position in `ids`); ids are sorted, so position order is id order.
         let by_key = |a: &(f32, usize), b: &(f32, usize)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
-        let keys: Vec<f32> = self
-            .summaries
+        let keys: Vec<f32> = ids
             .par_iter()
             .with_min_len(256)
-            .map(|s| rank_key(&q, s, p.width_px, p.max_shift_px))
+            .map(|&id| rank_key(q, &self.summaries[id], p.width_px, p.max_shift_px))
             .collect();
         let mut order: Vec<(f32, usize)> = keys.iter().copied().zip(0..).collect();
         let k = seed_count(n);
@@ -218,27 +275,27 @@ impl ViewCells {
 
         let beat = AtomicU32::new(f32::INFINITY.to_bits());
         let mut seeded = vec![false; n];
-        for &(_, id) in &order {
-            seeded[id] = true;
+        for &(_, i) in &order {
+            seeded[i] = true;
         }
         // The most likely template alone, so that the other seeds can already be pruned against it.
-        let first = self.visit(template, &q, order[0].1, order[0].0, &beat);
+        let first = self.visit(template, q, ids[order[0].1], order[0].0, &beat);
         let seeds = order[1..]
             .par_iter()
-            .filter_map(|&(key, id)| self.visit(template, &q, id, key, &beat))
+            .filter_map(|&(key, i)| self.visit(template, q, ids[i], key, &beat))
             .reduce_with(better);
         let rest = (0..n)
             .into_par_iter()
             .with_min_len(32)
-            .filter(|&id| !seeded[id])
-            .filter_map(|id| self.visit(template, &q, id, keys[id], &beat))
+            .filter(|&i| !seeded[i])
+            .filter_map(|i| self.visit(template, q, ids[i], keys[i], &beat))
             .reduce_with(better);
         let best = [first, seeds, rest].into_iter().flatten().reduce(better);
-        Ok(best.map(|(d, id, s)| ViewMatch {
+        best.map(|(d, id, s)| ViewMatch {
             cell_id: id,
             difference: d,
             shift_px: s as i32,
-        }))
+        })
     }
 
     /// Reference search: every template, every shift, no pruning (for tests and benchmarks).
@@ -262,7 +319,7 @@ impl ViewCells {
         Ok((0..self.len())
             .into_par_iter()
             .map(|id| {
-                self.exact(template, &q, id, f32::INFINITY)
+                self.exact(&q.columns, &q.summary, id, f32::INFINITY)
                     .map_or((1.0, 0), |(d, s)| (d, s as i32))
             })
             .collect())
@@ -270,8 +327,32 @@ impl ViewCells {
 
     /// Match a view and create a cell when it is novel (SPEC §7).
     pub fn observe(&mut self, template: &[f32]) -> Result<ViewObservation, ViewError> {
+        self.observe_in(template, None)
+    }
+
+    /// [`observe`](Self::observe) with the match restricted to the cells `candidates`: familiar when the
+    /// best difference among them is below the novelty threshold, otherwise a new cell is created (also
+    /// when the set is empty); an uninformative template changes nothing. Candidate ids are checked (see
+    /// [`best_match_among`](Self::best_match_among)) before anything is stored.
+    pub fn observe_among(
+        &mut self,
+        template: &[f32],
+        candidates: &[usize],
+    ) -> Result<ViewObservation, ViewError> {
+        self.observe_in(template, Some(candidates))
+    }
+
+    fn observe_in(
+        &mut self,
+        template: &[f32],
+        candidates: Option<&[usize]>,
+    ) -> Result<ViewObservation, ViewError> {
         let q = self.check(template)?;
-        if q.texture < self.params.min_texture {
+        let ids = match candidates {
+            Some(c) => self.candidate_ids(c)?,
+            None => (0..self.len()).collect(),
+        };
+        if q.summary.texture < self.params.min_texture {
             return Ok(ViewObservation {
                 status: ViewStatus::Uninformative,
                 cell_id: None,
@@ -280,7 +361,7 @@ impl ViewCells {
                 relative_heading_rad: 0.0,
             });
         }
-        let best = self.best_match(template)?;
+        let best = self.search(&q, &ids);
         let rad_per_px = self.params.heading_rad_per_px();
         match best {
             Some(m) if m.difference < self.params.novelty_threshold => Ok(ViewObservation {
@@ -291,7 +372,7 @@ impl ViewCells {
                 relative_heading_rad: f64::from(m.shift_px) * rad_per_px,
             }),
             _ => {
-                let id = self.add(template)?;
+                let id = self.store(q);
                 Ok(ViewObservation {
                     status: ViewStatus::New,
                     cell_id: Some(id),

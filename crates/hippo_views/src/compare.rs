@@ -15,6 +15,10 @@
 //! scene slid sideways: a positive shift (content moved right) means the camera turned counter-clockwise
 //! (left) since the stored view, by `s · field_of_view / width` radians.
 //!
+//! Layout: templates arrive row-major but are stored and compared column-major (column after column, `height`
+//! values each), so that the overlap at any shift is one contiguous run of `(width − |s|) · height` values in
+//! both templates: one long, branch-free, vectorised sum per shift instead of `height` short rows.
+//!
 //! Coarse lower bound: summing `b − a` over blocks of `k` rows before taking absolute values can only
 //! shrink the numerator (|Σ e| ≤ Σ |e|) while the denominator is exact (from per-column |·| sums), so
 //! `d_coarse(s) ≤ d(s)`: templates whose coarse bound already exceeds the best difference found can be
@@ -45,6 +49,52 @@ pub(crate) fn sad(a: &[f32], b: &[f32]) -> f32 {
     lanes.iter().sum::<f32>() + tail
 }
 
+/// Values summed between two checks of the early exit in `numerator` (a multiple of `WIDE`).
+const CHECK_EVERY: usize = 256;
+/// Accumulators of the long sums: four independent vectors of eight, so the adds of consecutive chunks do
+/// not wait on each other's latency.
+const WIDE: usize = 32;
+
+/// `sad` for long runs, accumulating into `lanes` (not reset) and returning the sum of the last
+/// `len % WIDE` values, which do not fill a chunk.
+#[inline(always)]
+fn sad_wide(a: &[f32], b: &[f32], lanes: &mut [f32; WIDE]) -> f32 {
+    let mut ca = a.chunks_exact(WIDE);
+    let mut cb = b.chunks_exact(WIDE);
+    for (pa, pb) in (&mut ca).zip(&mut cb) {
+        for i in 0..WIDE {
+            lanes[i] += (pa[i] - pb[i]).abs();
+        }
+    }
+    let mut tail = 0.0f32;
+    for (p, q) in ca.remainder().iter().zip(cb.remainder()) {
+        tail += (p - q).abs();
+    }
+    tail
+}
+
+/// Row-major `height × width` to column-major (`width × height`).
+pub(crate) fn to_column_major(t: &[f32], width: usize, height: usize) -> Vec<f32> {
+    let mut out = vec![0.0f32; t.len()];
+    for (r, row) in t.chunks_exact(width).take(height).enumerate() {
+        for (x, &v) in row.iter().enumerate() {
+            out[x * height + r] = v;
+        }
+    }
+    out
+}
+
+/// Column-major (`width × height`) back to row-major `height × width`.
+pub(crate) fn to_row_major(t: &[f32], width: usize, height: usize) -> Vec<f32> {
+    let mut out = vec![0.0f32; t.len()];
+    for (x, col) in t.chunks_exact(height).take(width).enumerate() {
+        for (r, &v) in col.iter().enumerate() {
+            out[r * width + x] = v;
+        }
+    }
+    out
+}
+
 /// Columns of the query that overlap the stored template at shift `s`: `x ∈ [x0, x1)`, stored column `x − s`.
 #[inline]
 pub(crate) fn overlap(shift: isize, width: usize) -> (usize, usize) {
@@ -62,33 +112,29 @@ pub(crate) fn shift_order(max_shift: usize) -> impl Iterator<Item = isize> {
 pub(crate) struct Summary {
     /// Σ_r |v[r, x]| per column (width values).
     pub col_abs: Vec<f32>,
-    /// Row-block sums (ceil(height / k) × width).
+    /// Row-block sums, column-major (width columns of ceil(height / k) blocks).
     pub coarse: Vec<f32>,
     /// Σ_r v[r, x] per column (width values): the coarsest blocks, for the ranking key.
     pub col_sum: Vec<f32>,
-    /// Prefix sums of `col_abs` in f64 (width + 1 values): O(1) denominators for the bounds.
+    /// Prefix sums of `col_abs` in f64 (width + 1 values): the denominator at any shift in O(1).
     pub abs_prefix: Vec<f64>,
     /// Mean |v| over the template: its texture.
     pub texture: f32,
 }
 
+/// Summary of a column-major template (see the module docs).
 pub(crate) fn summarise(t: &[f32], width: usize, height: usize, coarse_rows: usize) -> Summary {
-    let mut col_abs = vec![0.0f32; width];
     let n_blocks = height.div_ceil(coarse_rows);
+    let mut col_abs = vec![0.0f32; width];
     let mut coarse = vec![0.0f32; n_blocks * width];
-    for r in 0..height {
-        let row = &t[r * width..(r + 1) * width];
-        let block = &mut coarse[(r / coarse_rows) * width..(r / coarse_rows + 1) * width];
-        for x in 0..width {
-            col_abs[x] += row[x].abs();
-            block[x] += row[x];
-        }
-    }
     let mut col_sum = vec![0.0f32; width];
-    for block in coarse.chunks_exact(width) {
-        for (c, v) in col_sum.iter_mut().zip(block) {
-            *c += v;
+    for (x, col) in t.chunks_exact(height).take(width).enumerate() {
+        let blocks = &mut coarse[x * n_blocks..(x + 1) * n_blocks];
+        for (r, &v) in col.iter().enumerate() {
+            col_abs[x] += v.abs();
+            blocks[r / coarse_rows] += v;
         }
+        col_sum[x] = blocks.iter().sum();
     }
     let mut abs_prefix = Vec::with_capacity(width + 1);
     let mut acc = 0.0f64;
@@ -107,10 +153,11 @@ pub(crate) fn summarise(t: &[f32], width: usize, height: usize, coarse_rows: usi
     }
 }
 
-/// The denominator of `d(s)` from prefix sums: the same real value as `denominator`, computed in O(1) with
-/// a different (smaller) rounding error; only used by the bounds, whose threshold carries a slack for it.
+/// The denominator of `d(s)`, Σ over the overlap of the per-column magnitudes of both templates, in O(1)
+/// from the f64 prefix sums (a plain f32 sum per shift is a chain of dependent adds that cost as much as
+/// the numerator). The exact difference and the bounds share it.
 #[inline]
-pub(crate) fn fast_denominator(a_sum: &Summary, b_sum: &Summary, shift: isize) -> f32 {
+pub(crate) fn denominator(a_sum: &Summary, b_sum: &Summary, shift: isize) -> f32 {
     let (x0, x1) = overlap(shift, a_sum.col_abs.len());
     let bs = (x0 as isize - shift) as usize;
     let be = bs + (x1 - x0);
@@ -118,16 +165,15 @@ pub(crate) fn fast_denominator(a_sum: &Summary, b_sum: &Summary, shift: isize) -
         as f32
 }
 
-/// Σ over the overlap of the per-column magnitudes of both templates (the denominator of `d(s)`).
-#[inline]
-pub(crate) fn denominator(a_col_abs: &[f32], b_col_abs: &[f32], shift: isize) -> f32 {
-    let (x0, x1) = overlap(shift, a_col_abs.len());
-    let bs = (x0 as isize - shift) as usize;
-    a_col_abs[x0..x1].iter().sum::<f32>() + b_col_abs[bs..bs + (x1 - x0)].iter().sum::<f32>()
-}
-
-/// Numerator of `d(s)` over `rows` rows; stops early (returning a value > `abort_above`) once the
-/// partial sum passes `abort_above`, because the caller only needs to know it cannot win.
+/// Numerator of `d(s)` for column-major templates of `rows` values per column: one contiguous run per
+/// template (the overlapping columns). Stops early (returning a value > `abort_above`) once the partial sum
+/// passes `abort_above`, because the caller only needs to know it cannot win. The exit is tested every
+/// `CHECK_EVERY` values on a copy of the running sum, so a value returned without exiting is the same
+/// whatever `abort_above` was: the pruned search and the exhaustive one compute identical differences.
+///
+/// On x86-64 CPUs with AVX2 the same code runs compiled for 256-bit vectors (about 1.6× faster than the
+/// baseline SSE2 build). The result is bit-identical either way: the order of every add is fixed by the
+/// code, the instruction set only changes how many lanes are added at once.
 #[inline]
 pub(crate) fn numerator(
     a: &[f32],
@@ -137,17 +183,64 @@ pub(crate) fn numerator(
     shift: isize,
     abort_above: f32,
 ) -> f32 {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the CPU supports AVX2 (checked just above), the only requirement of `numerator_avx2`.
+        return unsafe { numerator_avx2(a, b, width, rows, shift, abort_above) };
+    }
+    numerator_portable(a, b, width, rows, shift, abort_above)
+}
+
+/// `numerator_portable` compiled with AVX2 enabled.
+///
+/// # Safety
+/// The CPU must support AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn numerator_avx2(
+    a: &[f32],
+    b: &[f32],
+    width: usize,
+    rows: usize,
+    shift: isize,
+    abort_above: f32,
+) -> f32 {
+    numerator_portable(a, b, width, rows, shift, abort_above)
+}
+
+#[inline(always)]
+fn numerator_portable(
+    a: &[f32],
+    b: &[f32],
+    width: usize,
+    rows: usize,
+    shift: isize,
+    abort_above: f32,
+) -> f32 {
     let (x0, x1) = overlap(shift, width);
     let bs = (x0 as isize - shift) as usize;
-    let mut acc = 0.0f32;
-    for r in 0..rows {
-        let o = r * width;
-        acc += sad(&a[o + x0..o + x1], &b[o + bs..o + bs + (x1 - x0)]);
-        if acc > abort_above {
-            return acc;
+    let run_a = &a[x0 * rows..x1 * rows];
+    let run_b = &b[bs * rows..(bs + x1 - x0) * rows];
+    let mut lanes = [0.0f32; WIDE];
+    let mut tail = 0.0f32;
+    for (pa, pb) in run_a.chunks(CHECK_EVERY).zip(run_b.chunks(CHECK_EVERY)) {
+        tail += sad_wide(pa, pb, &mut lanes);
+        let partial = lanes_total(&lanes) + tail;
+        if partial > abort_above {
+            return partial;
         }
     }
-    acc
+    lanes_total(&lanes) + tail
+}
+
+/// Sum of the lanes in a fixed order that vectorises (the four vectors first, then their eight lanes).
+#[inline(always)]
+fn lanes_total(lanes: &[f32; WIDE]) -> f32 {
+    let mut v = [0.0f32; 8];
+    for (i, x) in v.iter_mut().enumerate() {
+        *x = (lanes[i] + lanes[i + 8]) + (lanes[i + 16] + lanes[i + 24]);
+    }
+    v.iter().sum()
 }
 
 /// Normalised difference of two zero-magnitude-safe templates: 1 (no evidence) when both are blank.
@@ -178,7 +271,7 @@ pub(crate) fn best_shift(
     let mut best: Option<(f32, isize)> = None;
     for s in shift_order(max_shift) {
         let limit = best.map_or(beat, |(d, _)| d.min(beat));
-        let den = denominator(&a_sum.col_abs, &b_sum.col_abs, s);
+        let den = denominator(a_sum, b_sum, s);
         let abort_above = if limit.is_finite() {
             limit * den * (1.0 + 1e-6)
         } else {
@@ -205,7 +298,7 @@ pub(crate) fn coarse_bound(
     let rows = a_sum.coarse.len() / width;
     shift_order(max_shift)
         .map(|s| {
-            let den = denominator(&a_sum.col_abs, &b_sum.col_abs, s);
+            let den = denominator(a_sum, b_sum, s);
             ratio(
                 numerator(&a_sum.coarse, &b_sum.coarse, width, rows, s, f32::INFINITY),
                 den,
@@ -226,7 +319,7 @@ pub(crate) fn coarse_exceeds(
 ) -> bool {
     let rows = a_sum.coarse.len() / width;
     for s in shift_order(max_shift) {
-        let den = fast_denominator(a_sum, b_sum, s);
+        let den = denominator(a_sum, b_sum, s);
         if den <= f32::MIN_POSITIVE {
             return false; // blank overlap: d(s) = 1 by convention, never ruled out here
         }
@@ -246,7 +339,7 @@ pub(crate) fn rank_key(a_sum: &Summary, b_sum: &Summary, width: usize, max_shift
             let (x0, x1) = overlap(s, width);
             let bs = (x0 as isize - s) as usize;
             let num = sad(&a_sum.col_sum[x0..x1], &b_sum.col_sum[bs..bs + (x1 - x0)]);
-            ratio(num, fast_denominator(a_sum, b_sum, s))
+            ratio(num, denominator(a_sum, b_sum, s))
         })
         .fold(f32::INFINITY, f32::min)
 }
@@ -297,8 +390,10 @@ mod tests {
                     *bv = 0.7 * av + 0.3 * *bv;
                 }
             }
-            let (sa, sb) = (summarise(&a, w, h, k), summarise(&b, w, h, k));
-            let (best, _) = best_shift(&a, &sa, &b, &sb, w, h, smax, f32::INFINITY).unwrap();
+            let (ca, cb) = (to_column_major(&a, w, h), to_column_major(&b, w, h));
+            assert_eq!(to_row_major(&ca, w, h), a);
+            let (sa, sb) = (summarise(&ca, w, h, k), summarise(&cb, w, h, k));
+            let (best, _) = best_shift(&ca, &sa, &cb, &sb, w, h, smax, f32::INFINITY).unwrap();
             let plain = shift_order(smax)
                 .map(|s| plain_difference(&a, &b, w, h, s))
                 .fold(f32::INFINITY, f32::min);
@@ -324,8 +419,42 @@ mod tests {
                     "seed {seed}: threshold {thr}, bound {bound}"
                 );
             }
-            let den = denominator(&sa.col_abs, &sb.col_abs, 3);
-            assert!((fast_denominator(&sa, &sb, 3) - den).abs() <= 1e-6 * den);
+            let plain: f64 = sa.col_abs[3..]
+                .iter()
+                .chain(&sb.col_abs[..w - 3])
+                .map(|&v| f64::from(v))
+                .sum();
+            assert!((f64::from(denominator(&sa, &sb, 3)) - plain).abs() <= 1e-6 * plain);
+        }
+    }
+
+    #[test]
+    fn numerator_is_the_same_on_every_instruction_set_and_exit_threshold() {
+        let (w, h) = (64, 24);
+        for seed in 0..10 {
+            let a = noise(seed, w * h);
+            let b = noise(seed + 77, w * h);
+            for s in [-8isize, -3, 0, 5, 8] {
+                let full = numerator_portable(&a, &b, w, h, s, f32::INFINITY);
+                assert_eq!(numerator(&a, &b, w, h, s, f32::INFINITY), full);
+                // A threshold the sum passes exits early with a value above it; one it never reaches
+                // returns the full sum, bit for bit.
+                assert!(numerator(&a, &b, w, h, s, 0.5 * full) > 0.5 * full);
+                assert_eq!(numerator(&a, &b, w, h, s, full), full);
+                // The definition, on the row-major templates.
+                let (ra, rb) = (to_row_major(&a, w, h), to_row_major(&b, w, h));
+                let mut plain = 0.0f64;
+                for r in 0..h {
+                    for x in s.max(0)..w as isize + s.min(0) {
+                        let (p, q) = (ra[r * w + x as usize], rb[r * w + (x - s) as usize]);
+                        plain += f64::from((p - q).abs());
+                    }
+                }
+                assert!(
+                    (f64::from(full) - plain).abs() < 1e-5 * plain,
+                    "seed {seed}, shift {s}"
+                );
+            }
         }
     }
 

@@ -26,4 +26,13 @@ pub enum ViewError {
     NonFinite { row: usize, col: usize, value: f32 },
     #[error("view cell {id} does not exist (there are {count})")]
     UnknownCell { id: usize, count: usize },
+    #[error(
+        "candidate {position} is view cell {id}, which does not exist (there are {count}, so ids are \
+         below {count}); restrict the search to ids of stored cells"
+    )]
+    UnknownCandidate {
+        id: usize,
+        position: usize,
+        count: usize,
+    },
 }

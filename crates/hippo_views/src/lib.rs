@@ -13,6 +13,9 @@
 //! between threads) and otherwise compared exactly with early exit; a novel query, which prunes nothing,
 //! costs about the same as the plain search.
 //! [`ViewCells::best_match_brute_force`] is the plain reference it is tested against.
+//! [`ViewCells::observe_among`] and [`ViewCells::best_match_among`] run the same search over a given subset
+//! of cells (e.g. those stored near the current place estimate), so that a long run's per-frame cost is set
+//! by the subset, not by the store.
 mod cells;
 pub mod compare;
 mod error;

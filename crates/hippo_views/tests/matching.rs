@@ -66,7 +66,7 @@ fn shift_is_recovered_and_gives_counter_clockwise_heading() {
     let p = params();
     for shift in [-6isize, -2, 3, 7] {
         let (mut cells, mut rng) = cells_with(30, 3);
-        let q = shifted(cells.template(5).unwrap(), &p, shift, &mut rng);
+        let q = shifted(&cells.template(5).unwrap(), &p, shift, &mut rng);
         let obs = cells.observe(&q).unwrap();
         assert_eq!(obs.status, ViewStatus::Familiar);
         assert_eq!(obs.cell_id, Some(5));
@@ -251,4 +251,147 @@ fn params_round_trip_through_json() {
     let back: ViewCellParams = serde_json::from_str(&s).unwrap();
     assert_eq!(p, back);
     assert!(serde_json::from_str::<ViewCellParams>(r#"{"width_px": 3}"#).is_err());
+}
+
+/// Brute force over a subset from the exhaustive differences: lowest difference, ties to the lowest id.
+fn brute_force_among(cells: &ViewCells, q: &[f32], ids: &[usize]) -> Option<(usize, f32, i32)> {
+    let d = cells.differences(q).unwrap();
+    let mut sorted = ids.to_vec();
+    sorted.sort_unstable();
+    sorted
+        .into_iter()
+        .map(|id| (id, d[id].0, d[id].1))
+        .fold(None, |best, c| match best {
+            Some(b) if b.1 <= c.1 => Some(b),
+            _ => Some(c),
+        })
+}
+
+#[test]
+fn restricted_search_equals_brute_force_over_the_subset() {
+    let p = params();
+    let (mut cells, mut rng) = cells_with(600, 11);
+    let dup = cells.template(40).unwrap().to_vec();
+    cells.add(&dup).unwrap(); // id 600, a tie with 40
+    for k in 0..40usize {
+        let target = (k * 53) % 600;
+        let q = match k % 3 {
+            0 => random_template(&mut rng, &p),
+            1 => dup.clone(),
+            _ => {
+                let mut q = shifted(
+                    &cells.template(target).unwrap(),
+                    &p,
+                    (k as isize % 7) - 3,
+                    &mut rng,
+                );
+                for v in &mut q {
+                    *v += rng.random_range(-0.5f32..0.5);
+                }
+                q
+            }
+        };
+        // Random subsets of 1–250 ids with duplicates, sometimes holding the target, sometimes not.
+        let size = 1 + (k * 37) % 250;
+        let mut ids: Vec<usize> = (0..size)
+            .map(|_| rng.random_range(0..cells.len()))
+            .collect();
+        if k % 2 == 0 {
+            ids.push(target);
+            ids.push(600);
+        }
+        ids.extend_from_slice(&ids.clone()[..size / 3]);
+        let fast = cells.best_match_among(&q, &ids).unwrap().unwrap();
+        let (id, d, s) = brute_force_among(&cells, &q, &ids).unwrap();
+        assert_eq!((fast.cell_id, fast.shift_px), (id, s), "query {k}");
+        assert_eq!(fast.difference, d, "query {k}");
+    }
+    // With every id, the restricted search is the full one.
+    let q = random_template(&mut rng, &p);
+    let all: Vec<usize> = (0..cells.len()).rev().collect();
+    assert_eq!(
+        cells.best_match_among(&q, &all).unwrap(),
+        cells.best_match(&q).unwrap()
+    );
+    // Ties resolve to the lowest id of the subset, as in the full search.
+    assert_eq!(
+        cells
+            .best_match_among(&dup, &[600, 40])
+            .unwrap()
+            .unwrap()
+            .cell_id,
+        40
+    );
+    assert_eq!(
+        cells
+            .best_match_among(&dup, &[600])
+            .unwrap()
+            .unwrap()
+            .cell_id,
+        600
+    );
+    assert_eq!(cells.best_match_among(&dup, &[]).unwrap(), None);
+}
+
+#[test]
+fn restricted_observe_is_familiar_only_within_the_subset() {
+    let p = params();
+    let (mut cells, mut rng) = cells_with(50, 12);
+    let q = shifted(&cells.template(7).unwrap(), &p, 2, &mut rng);
+    let obs = cells.observe_among(&q, &[3, 7, 7, 20]).unwrap();
+    assert_eq!(
+        (obs.status, obs.cell_id, obs.shift_px),
+        (ViewStatus::Familiar, Some(7), 2)
+    );
+    assert_eq!(obs, cells.observe(&q).unwrap());
+    assert_eq!(cells.len(), 50);
+
+    // The same view with its cell left out is novel among the rest: a new cell, reporting the best
+    // difference among the candidates.
+    let others = [3usize, 20, 21];
+    let obs = cells.observe_among(&q, &others).unwrap();
+    assert_eq!((obs.status, obs.cell_id), (ViewStatus::New, Some(50)));
+    let best_other = brute_force_among(&cells, &q, &others).unwrap();
+    assert_eq!(obs.difference, best_other.1);
+    assert_eq!(cells.template(50).unwrap(), q.as_slice());
+    // No candidates at all: always new.
+    let obs = cells.observe_among(&q, &[]).unwrap();
+    assert_eq!(
+        (obs.status, obs.cell_id, obs.difference),
+        (ViewStatus::New, Some(51), 1.0)
+    );
+    // Uninformative templates change nothing, whatever the candidates.
+    let blank = vec![0.0; p.template_len()];
+    let obs = cells.observe_among(&blank, &[0, 1]).unwrap();
+    assert_eq!((obs.status, obs.cell_id), (ViewStatus::Uninformative, None));
+    assert_eq!(cells.len(), 52);
+}
+
+#[test]
+fn unknown_candidates_are_errors_and_store_nothing() {
+    let p = params();
+    let (mut cells, mut rng) = cells_with(10, 13);
+    let q = random_template(&mut rng, &p);
+    let err = cells.observe_among(&q, &[1, 2, 10]).unwrap_err();
+    assert_eq!(
+        err,
+        ViewError::UnknownCandidate {
+            id: 10,
+            position: 2,
+            count: 10
+        }
+    );
+    assert!(err.to_string().contains("candidate 2 is view cell 10"));
+    assert_eq!(cells.len(), 10);
+    assert!(matches!(
+        cells.best_match_among(&q, &[usize::MAX]),
+        Err(ViewError::UnknownCandidate { id: usize::MAX, .. })
+    ));
+    let empty = ViewCells::new(p.clone()).unwrap();
+    assert!(empty.best_match_among(&q, &[0]).is_err());
+    // A bad template is still reported as such.
+    assert!(matches!(
+        cells.best_match_among(&[0.5; 3], &[0]),
+        Err(ViewError::BadTemplateSize { got: 3, .. })
+    ));
 }

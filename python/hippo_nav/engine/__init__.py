@@ -3,12 +3,16 @@
 from hippo_nav._core import find_bumps, fuse_modules
 from hippo_nav.engine.config import MODULE_NAMES, EngineConfig, GridConfig, HdConfig, PlaceConfig
 from hippo_nav.engine.network import Bump, ModuleReadout, SpatialMemory, SpatialReadout, ViewPatterns
+from hippo_nav.engine.views import CompactView, GridBumpCode, HdBumpCode
 
 __all__ = [
     "MODULE_NAMES",
     "Bump",
+    "CompactView",
     "EngineConfig",
+    "GridBumpCode",
     "GridConfig",
+    "HdBumpCode",
     "HdConfig",
     "ModuleReadout",
     "PlaceConfig",

@@ -127,6 +127,10 @@ class SpatialMemory:
         """HD-by-velocity activity, shape (Nν, Nθ)."""
         return self._net.hd_activity()
 
+    def hd_profile(self) -> np.ndarray:
+        """HD θ-profile: the activity summed over the velocity axis, shape (Nθ,)."""
+        return self._net.hd_profile()
+
     def grid_activity(self, module: int) -> np.ndarray:
         """Conjunctive activity, shape (M, M, N, N) = (νy, νx, θy, θx)."""
         return self._net.grid_activity(module)
@@ -144,7 +148,7 @@ class SpatialMemory:
     def view_patterns(self) -> ViewPatterns:
         """The patterns a new view cell stores (SPEC §7)."""
         return ViewPatterns(
-            hd_profile=self._net.hd_profile(),
+            hd_profile=self.hd_profile(),
             grid_layer2=[self.grid_layer2(i) for i in range(3)],
             place=self.place_activity(),
         )
