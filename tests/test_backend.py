@@ -122,8 +122,9 @@ def test_a_closure_measures_a_known_offset():
 
 def test_a_look_alike_place_elsewhere_is_refused(street, tmp_path):
     """The camera drives the street for 90 m, then sees the street's first 30 m again while its odometry
-    says it went on straight, 90–120 m from the start: views and stereo geometry agree on a closure, the
-    map's loop gate (where the odometry puts the agent) refuses it; with the gate opened, the map's
+    says it went on straight, 90–120 m from the start: views and stereo geometry would agree on a closure,
+    but the map's loop gate (where the odometry puts the agent) keeps those views out of the search and
+    the closure out of the map; with the gate opened, the views recognise the street, and the map's
     consistency check (the closure's χ² after correction) still refuses it; with both opened, the same
     input closes, so the refusals are the guards' doing."""
 
@@ -148,13 +149,14 @@ def test_a_look_alike_place_elsewhere_is_refused(street, tmp_path):
     k = np.arange(len(data))
     straight_on = planar_poses(1.5 * k, np.zeros(len(k)), np.zeros(len(k)))
     refused = Pipeline(data, config_from_dict(QUIET), odometry=_replay(tmp_path, data, straight_on)).run(None)
-    statuses = refused.record.column("view_status")[len(street) :]
-    assert statuses.count("familiar") >= 10  # the views do recognise the street's start
     assert refused.metrics["loop_closures"] == 0
     notes = refused.record.column("closure_note")[len(street) :]
     assert "measured" not in notes and "accepted" not in notes  # none got past the gate
+    assert sum(refused.record.column("injection_strength")[len(street) :]) == 0.0  # nor injected
     gate_open = config_from_dict({**QUIET, "map": {"loop_gate_m": 500.0}})
     checked = Pipeline(data, gate_open, odometry=_replay(tmp_path, data, straight_on, "2.txt")).run(None)
+    statuses = checked.record.column("view_status")[len(street) :]
+    assert statuses.count("familiar") >= 10  # the views do recognise the street's start
     assert checked.metrics["loop_closures"] == 0
     assert checked.record.column("closure_note")[len(street) :].count("inconsistent") >= 10
     both_open = config_from_dict({**QUIET, "map": {"loop_gate_m": 500.0, "max_loop_chi2": 1e12}})

@@ -552,6 +552,11 @@ impl ExperienceMap {
         Ok(near.into_iter().map(|(_, i)| i).collect())
     }
 
+    /// The loop gate at the agent now: (radius m, yaw rad) around the odometry's prediction.
+    pub fn loop_gate(&self) -> (f64, f64) {
+        self.gate_now(self.odometer_m)
+    }
+
     /// The loop gate now, for an agent whose odometer reads `odometer_m`.
     fn gate_now(&self, odometer_m: f64) -> (f64, f64) {
         self.params
@@ -714,7 +719,7 @@ impl ExperienceMap {
             return Some(ClosureRejection::TooRecent);
         }
         let (radius_m, yaw_rad) = self.gate_now(self.odometer_m);
-        let off_m = distance_m(&predicted, world_from_agent_claimed);
+        let off_m = distance_m(predicted, world_from_agent_claimed);
         let off_yaw = wrap_angle(predicted.yaw - world_from_agent_claimed.yaw).abs();
         (off_m > radius_m || off_yaw > yaw_rad).then_some(ClosureRejection::OutsideGate)
     }
@@ -854,7 +859,8 @@ impl ExperienceMap {
                     &self.vertices[l.from].world_from_vertex,
                     &self.vertices[l.to].world_from_vertex,
                 );
-                if !(chi2 <= self.params.max_loop_chi2) {
+                // NaN (a failed solve) counts as inconsistent too.
+                if chi2.is_nan() || chi2 > self.params.max_loop_chi2 {
                     self.links.pop();
                     for (v, pose) in self.vertices.iter_mut().zip(saved) {
                         v.world_from_vertex = pose;

@@ -17,6 +17,13 @@ use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use std::path::PathBuf;
 
+/// `(x, y, yaw)` as it crosses the boundary.
+type PoseTuple = (f64, f64, f64);
+/// A measured loop closure from Python: target vertex, `agent_from_target`, information (3, 3).
+type LoopArg<'py> = (usize, PoseTuple, PyReadonlyArrayDyn<'py, f64>);
+/// A loop candidate for Python: vertex, predicted `agent_from_vertex`, distance (m).
+type CandidateTuple = (usize, PoseTuple, f64);
+
 fn pose_of(name: &str, p: (f64, f64, f64)) -> PyResult<Pose2> {
     let pose = Pose2::new(p.0, p.1, p.2);
     if !pose.is_finite() {
@@ -448,7 +455,7 @@ impl PyExperienceMap {
         heading_code_rad: f64,
         odometry_step: (f64, f64, f64),
         elapsed_s: f64,
-        loop_closure: Option<(usize, (f64, f64, f64), PyReadonlyArrayDyn<'_, f64>)>,
+        loop_closure: Option<LoopArg<'_>>,
     ) -> PyResult<PyFrameOutcome> {
         let loop_closure = match loop_closure {
             None => None,
@@ -477,7 +484,7 @@ impl PyExperienceMap {
         &self,
         vertices: Vec<usize>,
         odometry_step: (f64, f64, f64),
-    ) -> PyResult<Vec<(usize, (f64, f64, f64), f64)>> {
+    ) -> PyResult<Vec<CandidateTuple>> {
         let step = pose_of("odometry_step", odometry_step)?;
         Ok(self
             .map
@@ -500,6 +507,12 @@ impl PyExperienceMap {
         }
         let step = pose_of("odometry_step", odometry_step)?;
         self.map.vertices_near(radius_m, &step).map_err(to_py_err)
+    }
+
+    /// The loop gate at the agent now: `(radius_m, yaw_rad)` around where the odometry puts it (grows
+    /// with the distance travelled since the last accepted closure).
+    fn loop_gate(&self) -> (f64, f64) {
+        self.map.loop_gate()
     }
 
     /// Distance travelled so far along the odometry (m).

@@ -42,7 +42,7 @@ import numpy as np
 
 from hippo_nav._core import HippoNavError
 from hippo_nav.closure import Keyframe, KeyframeExtractor, LoopMeasurer
-from hippo_nav.engine import SpatialMemory, SpatialReadout, ViewPatterns
+from hippo_nav.engine import CompactView, SpatialMemory, SpatialReadout, ViewPatterns
 from hippo_nav.geometry import lift_planar, planar_from_pose, se2_between, se2_compose
 from hippo_nav.io import DatasetError
 from hippo_nav.map import ClosureMode, new_experience_map
@@ -97,8 +97,9 @@ class Pipeline:
             self._extract = KeyframeExtractor(dataset.calibration, self.config.closure)
             self._measurer = LoopMeasurer(dataset.calibration, self.config.closure)
         self.record = RunRecord()
-        self._stored_views: dict[int, ViewPatterns] = {}
+        self._stored_views: dict[int, CompactView] = {}
         self._cell_vertex: dict[int, int] = {}  # view cell -> the vertex the agent was at when it was made
+        self._vertex_cells: dict[int, list[int]] = {}  # the inverse
         self._active_view: int | None = None
         self._active_run = 0
         self._last_active: dict[int, int] = {}
@@ -179,14 +180,15 @@ class Pipeline:
         clock = self._lap("vo", clock)
 
         # 2. Local view cells: which view, and what (if anything) it injects.
-        obs = self._observe_view(frame.left)
+        obs = self._observe_view(frame.left, planar)
         view, strength = self._injection(obs)
         clock = self._lap("views", clock)
 
         # 3. Spatial memory integrates the motion (not on the first frame: there is no motion yet).
         readout, yaw_rate, speed, flag = self._integrate(planar, dt_s, view, vo_status)
         if obs is not None and obs.is_new:
-            self._stored_views[int(obs.cell_id)] = self._patterns_to_store()
+            # What the cell recalls: the bumps' phases and widths (88 bytes), not the patterns (~50 kB).
+            self._stored_views[int(obs.cell_id)] = CompactView.from_engine(self.engine)
         clock = self._lap("engine", clock)
 
         # 4. Loop closure measured against the keyframes of candidate vertices.
@@ -214,6 +216,7 @@ class Pipeline:
                 self.keyframes[int(outcome.vertex)] = current or self._extract(frame.left, frame.right)
         if obs is not None and obs.is_new and outcome.vertex is not None:
             self._cell_vertex[int(obs.cell_id)] = int(outcome.vertex)
+            self._vertex_cells.setdefault(int(outcome.vertex), []).append(int(obs.cell_id))
         clock = self._lap("map", clock)
 
         self._record(frame, step, vo_status, flag, yaw_rate, speed, obs, strength, readout, code, outcome, note)
@@ -240,8 +243,20 @@ class Pipeline:
         self._last_step = step
         return step, status
 
-    def _observe_view(self, left: np.ndarray) -> Any:
-        obs = self.views.observe(self.views.template_from_image(left))
+    def _view_candidates(self, planar: np.ndarray) -> list[int] | None:
+        """The cells to compare this frame with (None: all; see `ViewSearchConfig`)."""
+        cfg = self.config.view_search
+        if not cfg.near_only or len(self.map) == 0:
+            return None
+        radius_m = min(self.map.loop_gate()[0] + cfg.radius_margin_m, cfg.max_radius_m)
+        cells = [c for v in self.map.vertices_near(radius_m, tuple(planar)) for c in self._vertex_cells.get(v, ())]
+        n = len(self.views)
+        cells.extend(range(max(n - cfg.recent_cells, 0), n))
+        return cells
+
+    def _observe_view(self, left: np.ndarray, planar: np.ndarray) -> Any:
+        template = self.views.template_from_image(left)
+        obs = self.views.observe(template, self._view_candidates(planar))
         if obs.cell_id is not None:
             cell = int(obs.cell_id)
             position = len(self.record)
@@ -269,21 +284,10 @@ class Pipeline:
         strength = cfg.initial_strength * cfg.decay_per_frame**self._active_run
         if strength < cfg.min_strength or strength == 0.0:
             return None, 0.0
-        hd = stored.hd_profile
-        if cfg.shift_heading:
-            # The stored profile peaks at the heading the view was stored with; now the camera faces
-            # `relative_heading_rad` further (counter-clockwise), so rotate it by that many θ bins.
-            shift = int(np.rint(float(obs.relative_heading_rad) / (2 * np.pi / len(hd))))
-            hd = np.roll(hd, shift)
-        return ViewPatterns(hd_profile=hd, grid_layer2=list(stored.grid_layer2), strength=strength), strength
-
-    def _patterns_to_store(self) -> ViewPatterns:
-        # float32 keeps a stored view at ~50 kB (HD profile + three 64×64 layer-II patterns).
-        p = self.engine.view_patterns()
-        return ViewPatterns(
-            hd_profile=np.asarray(p.hd_profile, dtype=np.float32),
-            grid_layer2=[None if g is None else np.asarray(g, dtype=np.float32) for g in p.grid_layer2],
-        )
+        # The stored heading is where the camera faced when the view was stored; now it faces
+        # `relative_heading_rad` further (counter-clockwise), so the recalled heading turns with it.
+        offset = float(obs.relative_heading_rad) if cfg.shift_heading else 0.0
+        return stored.patterns(strength=strength, heading_offset_rad=offset), strength
 
     def _integrate(
         self, planar: np.ndarray, dt_s: float, view: ViewPatterns | None, vo_status: str

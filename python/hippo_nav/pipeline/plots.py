@@ -20,13 +20,14 @@ all sharing the first processed frame as origin; no trajectory is aligned to ano
 - `rate_maps.png` (the paper's firing-rate maps), one column per network (grid k = 1, 2, 4, place):
   top row, one unit's mean activity in each spatial bin the agent visited over the whole road network,
   drawn as activity-coloured squares along the path (field bins larger and on top) so thin roads and
-  few-metre fields stay visible at any scale; positions from the ground truth when there is one (as in a rat experiment), else from the
-  corrected trajectory. Bottom row, the same unit's activity folded onto one torus period: positions
-  modulo P, averaged over the P × P square. A unit of grid module k fires wherever its k × k bumps pass,
-  i.e. every P/k metres, so the folded map shows k² fields (1, 4, 16) and a place unit one. The folded
-  positions are by default the networks' own estimate (the unwrapped place code), whose phase is the
-  torus phase by construction; folding the ground truth instead (`fold_positions="track"`) blurs the
-  dorsal fields by the odometry's drift, which over a kilometre exceeds their P/4 spacing.
+  few-metre fields stay visible at any scale; positions from the ground truth when there is one (as in a
+  rat experiment), else from the corrected trajectory. Bottom row, the same unit's activity folded onto
+  one torus period: positions modulo P, averaged in bins over the P × P square. A unit of grid module k
+  fires wherever one of its k × k bumps passes, i.e. every P/k metres along both axes, so the folded map
+  shows k² fields (1, 4, 16) and a place unit one. The folded positions are by default the networks' own
+  estimate (the unwrapped place code), whose phase is the torus phase by construction; folding the
+  ground-truth track instead (`fold_positions="track"`) blurs the fields by the networks' drift from the
+  ground truth, which over a kilometre reaches the dorsal module's P/4 field spacing.
   The unit shown per network is, among the recorded regular sub-grid of its units, the one whose rate
   map varies most over the visited bins (it fires in some places and is silent in others).
 """
@@ -360,8 +361,8 @@ def rate_maps_figure(
         peak = float(np.nanmax(rates)) if len(rates) else 0.0
         order = np.argsort(rates, kind="stable")  # fields on top where passes overlap
         scale = peak if peak > 0 else 1.0
-        # Field bins drawn up to 2.5 times larger: a few-metre field on a kilometre map stays visible.
-        side_pt = square_pt * (1.0 + 1.5 * rates[order] / scale)
+        # Field bins drawn up to twice as large: a few-metre field on a kilometre map stays visible.
+        side_pt = square_pt * (1.0 + rates[order] / scale)
         dots = top.scatter(
             *centres[order].T, c=rates[order], s=side_pt**2, marker="s", cmap=RATE_CMAP, vmin=0.0, vmax=scale,
             linewidths=0,
@@ -397,9 +398,7 @@ def rate_maps_figure(
 
 
 def _cmap_with_unvisited() -> Colormap:
-    cmap = colormaps[RATE_CMAP].copy()
-    cmap.set_bad(UNVISITED_GREY)
-    return cmap
+    return colormaps[RATE_CMAP].with_extremes(bad=UNVISITED_GREY)
 
 
 def plot_rate_maps(

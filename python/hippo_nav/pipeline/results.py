@@ -329,7 +329,9 @@ def write_results(
 
         clock = time.perf_counter()
         try:
-            written = write_run_figures(result, out, config.output.rate_map_bin_m)
+            written = write_run_figures(
+                result, out, config.output.rate_map_bin_m, config.engine.torus_period_m
+            )
             metrics["figures"] = [p.name for p in written]
         except KeyboardInterrupt:
             log.warning("figures interrupted; the other results are written")
