@@ -19,7 +19,7 @@ develop: setup ## build the Rust engine (release) and install hippo_nav with its
 	$(VENV)/bin/maturin develop --release --quiet --extras test
 
 demo: develop ## the main job: run hippo-nav on the built-in synthetic demo sequence
-	$(VENV)/bin/hippo-nav run --out runs/demo
+	$(VENV)/bin/hippo-nav run --out runs/demo --overwrite
 
 test-rust: ## Rust core tests
 	cargo test --workspace

@@ -113,7 +113,7 @@ def test_missing_images(kitti_root: Path) -> None:
         KittiOdometry(kitti_root, "03", start=5, stop=40)
     for image in (kitti_root / "sequences" / "03" / "image_1").iterdir():
         image.unlink()
-    with pytest.raises(DatasetError, match="no frame has both image_0 and image_1"):
+    with pytest.raises(DatasetError, match="no frame from 0 on has both image_0 and image_1"):
         KittiOdometry(kitti_root, "03")
 
 
@@ -154,11 +154,30 @@ def test_malformed_times_and_short_pose_file(kitti_root: Path) -> None:
         KittiOdometry(kitti_root, "03")
     np.savetxt(seq / "times.txt", np.arange(12) * 0.1)
     write_kitti_poses(kitti_root / "poses" / "03.txt", np.tile(np.eye(4), (5, 1, 1)))
-    with pytest.raises(DatasetError, match=r"03.txt: holds 5 poses but frame 7 is needed"):
-        KittiOdometry(kitti_root, "03").ground_truth()
+    # The ground truth is read and checked when the dataset is opened, not after the last frame.
+    with pytest.raises(DatasetError, match=r"03.txt: holds 5 poses but .*times.txt lists 12 frames"):
+        KittiOdometry(kitti_root, "03")
     (kitti_root / "poses" / "03.txt").write_text("1 0 0 0 0 1 0 0 0 0 1 0\n1 0 0\n")
     with pytest.raises(DatasetError, match=r"03.txt:2: expected 12 numbers"):
-        KittiOdometry(kitti_root, "03").ground_truth()
+        KittiOdometry(kitti_root, "03")
+    np.savetxt(seq / "times.txt", [0.0, 0.1, 0.1, 0.3])
+    with pytest.raises(DatasetError, match=r"times.txt:3: timestamp 0.1 repeats the previous one"):
+        KittiOdometry(kitti_root, "03")
+
+
+def test_frames_are_never_dropped_silently(kitti_root: Path) -> None:
+    seq = kitti_root / "sequences" / "03"
+    (seq / "image_1" / "000004.png").unlink()  # a hole inside the available frames 0..7
+    data = KittiOdometry(kitti_root, "03")
+    assert list(data.frame_indices) == [0, 1, 2, 3, 5, 6, 7] and data.missing_frames == [4]
+    assert any("lack a stereo image" in w for w in data.warnings) and "(4)" in data.note
+    # --start alone uses the frames available from there on.
+    assert list(KittiOdometry(kitti_root, "03", start=5).frame_indices) == [5, 6, 7]
+    # More images than timestamps: the extra images are reported, not silently ignored.
+    np.savetxt(seq / "times.txt", np.arange(6) * 0.1)
+    write_kitti_poses(kitti_root / "poses" / "03.txt", np.tile(np.eye(4), (6, 1, 1)))
+    short = KittiOdometry(kitti_root, "03")
+    assert short.frames_without_timestamp == 2 and "have no timestamp" in short.note
 
 
 @pytest.mark.data

@@ -60,6 +60,7 @@ def _frame(position: int) -> FrameRecord:
         motion_flag="ok", yaw_rate_rad_s=0.0, speed_m_s=10.0, view_cell=-1, view_status="none",
         view_difference=0.0, injection_strength=0.0, heading_rad=0.0, place_code_rad=(0.0, 0.0),
         place_position_m=(0.0, 0.0), vertex=0, vertex_created=False, loop_closure=None, closure_note="",
+        data_flags="",
         online_pose=np.zeros(3), vertex_from_agent=np.zeros(3),
     )  # fmt: skip
 

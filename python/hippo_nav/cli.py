@@ -1,6 +1,9 @@
-"""Command line: `hippo-nav run` (the main job: the SLAM pipeline) and `hippo-nav figures` (the paper's
-theory figures). Exit codes: 0 done, 2 bad input (one line on stderr), 130 interrupted by Ctrl-C (the results
-of the frames processed so far are written)."""
+"""Command line: `hippo-nav run` (the main job: the SLAM pipeline), `hippo-nav render` (a synthetic stereo
+street along a KITTI ground truth) and `hippo-nav figures` (the paper's theory figures).
+
+Exit codes: 0 done; 2 bad input (one line on stderr saying what to fix; nothing is processed); 130
+interrupted by Ctrl-C, 143 by SIGTERM, 129 by SIGHUP (128 + the signal number; the results of the frames
+processed so far are written)."""
 
 from __future__ import annotations
 
@@ -13,7 +16,10 @@ from typing import Any
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="hippo-nav", description=__doc__)
+    parser = argparse.ArgumentParser(
+        prog="hippo-nav", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--version", action="version", version=f"hippo-nav {_version()}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     run = sub.add_parser(
@@ -24,7 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
         "map, metrics.json, the resolved config and figures into --out.",
     )
     run.add_argument("--kitti", metavar="ROOT", help="KITTI odometry root (holds sequences/ and poses/)")
-    run.add_argument("--sequence", default="00", help="KITTI sequence number (default 00)")
+    run.add_argument("--sequence", default=None, help="KITTI sequence number (with --kitti; default 00)")
     run.add_argument("--start", type=int, default=None, help="first frame")
     run.add_argument("--stop", type=int, default=None, help="frame to stop before")
     run.add_argument("--stride", type=int, default=1, help="use every n-th frame")
@@ -38,7 +44,9 @@ def build_parser() -> argparse.ArgumentParser:
         choices=["ventral", "intermediate", "dorsal"],
         help="switch a grid module off (repeatable; adds to the config's lesions)",
     )
-    run.add_argument("--seed", type=int, default=None, help="override the config's seed")
+    run.add_argument(
+        "--seed", type=int, default=None, help=f"override the config's seed (0 to {MAX_SEED}; default 0)"
+    )
     run.add_argument(
         "--odometry",
         metavar="FILE",
@@ -59,7 +67,17 @@ def build_parser() -> argparse.ArgumentParser:
         "sequence's last frame",
     )
     run.add_argument("--no-figures", action="store_true", help="skip the figures")
-    run.add_argument("--out", default="runs/demo", help="results folder")
+    run.add_argument(
+        "--out",
+        default=None,
+        help="results folder (default: runs/demo for the demo, runs/kitti_NN for a KITTI sequence); "
+        "it must be new or empty unless --overwrite",
+    )
+    run.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace the results of an earlier run in --out (only the files a run writes are removed)",
+    )
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     render = sub.add_parser(
@@ -88,16 +106,35 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+MAX_SEED = 2**31 - 1
+"""Seeds reach OpenCV's RNG, which takes a 32-bit signed integer."""
+
+_SIGNAL_EXIT = {"SIGINT": 130, "SIGHUP": 129, "SIGTERM": 143}
+
+
+def _version() -> str:
+    from hippo_nav import __version__
+
+    return __version__
+
+
 def _run(args: argparse.Namespace) -> int:
+    from hippo_nav import HippoNavError
     from hippo_nav.pipeline import load_config, run
     from hippo_nav.pipeline.results import bump_rows, format_bump_table
 
-    if args.kitti is not None and not Path(args.kitti).is_dir():
-        print(
-            f"hippo-nav: error: --kitti {args.kitti}: no such folder (give the KITTI odometry root)",
-            file=sys.stderr,
+    if args.kitti is None and args.sequence is not None:
+        raise HippoNavError(
+            f"--sequence {args.sequence} needs --kitti ROOT (the KITTI root that holds it); "
+            "without --kitti the built-in demo runs"
         )
-        return 2
+    if args.kitti is not None and not Path(args.kitti).is_dir():
+        raise HippoNavError(f"--kitti {args.kitti}: no such folder (give the KITTI odometry root)")
+    if args.seed is not None and not 0 <= args.seed <= MAX_SEED:
+        raise HippoNavError(f"--seed {args.seed}: give an integer from 0 to {MAX_SEED}")
+    sequence = args.sequence or "00"
+    if args.out is None:
+        args.out = "runs/demo" if args.kitti is None else f"runs/kitti_{sequence}"
     odometry = _replay(args)
     config = load_config(args.config)
     if args.lesion:
@@ -109,13 +146,14 @@ def _run(args: argparse.Namespace) -> int:
     result = run(
         args.out,
         kitti=args.kitti,
-        sequence=args.sequence,
+        sequence=sequence,
         start=args.start,
         stop=args.stop,
         stride=args.stride,
         config=config,
         progress=not args.no_progress,
         odometry=odometry,
+        overwrite=args.overwrite,
     )
     print(json.dumps(_summary(result.metrics), indent=2))
     # The paper's bump table (μ, σ of every grid bump, fused, place) at the last snapshot frame only;
@@ -127,7 +165,7 @@ def _run(args: argparse.Namespace) -> int:
         print(format_bump_table([r for r in rows if r["frame"] == last_frame]))
     if result.interrupted:
         print(f"interrupted after {result.metrics['frames']} frames; results so far written to {args.out}")
-        return 130
+        return _SIGNAL_EXIT.get(result.metrics.get("interrupted_by", "SIGINT"), 130)
     print(f"results written to {args.out}")
     return 0
 
@@ -185,8 +223,8 @@ def _summary(metrics: dict) -> dict:
     """The headline numbers of a run (metrics.json holds everything)."""
     keys = ["sequence", "note", "frames", "view_cells", "vertices", "loop_closures", "interrupted"]
     summary = {k: metrics[k] for k in keys if metrics.get(k) not in (None, "")}
-    for name, entry in metrics.get("errors", {}).items():
-        if isinstance(entry, dict):
+    for name, entry in (metrics.get("errors") or {}).items():
+        if isinstance(entry, dict) and "ate_2d_m" in entry:
             summary[f"ate_2d_m_{name}"] = entry["ate_2d_m"]
     timing = metrics.get("timing", {})
     if timing.get("frames_per_s") is not None:
@@ -213,7 +251,8 @@ def main(argv: list[str] | None = None) -> int:
 
             write_all_figures(args.out)
             return 0
-    except (HippoNavError, OSError, ValueError) as err:
+    except (HippoNavError, OSError) as err:
+        # Bad input: one line saying what to fix. Anything else is a bug and keeps its traceback.
         print(f"hippo-nav: error: {err}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:  # before the pipeline started (e.g. while rendering the demo)

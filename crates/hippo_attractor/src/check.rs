@@ -25,6 +25,18 @@ pub fn finite(name: &'static str, value: f64) -> Result<()> {
     }
 }
 
+pub fn non_negative(name: &'static str, value: f64) -> Result<()> {
+    if value.is_finite() && value >= 0.0 {
+        Ok(())
+    } else {
+        Err(AttractorError::BadParameter {
+            name,
+            value: value.to_string(),
+            why: "must be finite and ≥ 0".into(),
+        })
+    }
+}
+
 pub fn non_positive(name: &'static str, value: f64) -> Result<()> {
     if value.is_finite() && value <= 0.0 {
         Ok(())
@@ -79,6 +91,18 @@ pub fn array_len(name: &'static str, got: usize, expected: usize, shape: String)
             expected,
             shape,
         })
+    }
+}
+
+/// Firing rates are never negative: a state with a negative activity did not come from these networks.
+pub fn array_non_negative<T: crate::real::Real>(name: &'static str, values: &[T]) -> Result<()> {
+    match values.iter().position(|v| *v < T::zero()) {
+        Some(index) => Err(AttractorError::BadParameter {
+            name,
+            value: format!("a negative value at flat index {index}"),
+            why: "activities are firing rates, ≥ 0".into(),
+        }),
+        None => Ok(()),
     }
 }
 

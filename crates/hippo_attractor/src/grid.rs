@@ -229,6 +229,7 @@ impl<T: Real> GridModule<T> {
             self.shape(),
         )?;
         check::array_finite("grid activity", m)?;
+        check::array_non_negative("grid activity", m)?;
         self.m = self.fold(m);
         Ok(())
     }

@@ -164,6 +164,7 @@ impl<T: Real> HdRing<T> {
     pub fn set_activity(&mut self, m: &[T]) -> Result<()> {
         check::array_len("hd activity", m.len(), self.m.len(), self.shape())?;
         check::array_finite("hd activity", m)?;
+        check::array_non_negative("hd activity", m)?;
         self.m.copy_from_slice(m);
         Ok(())
     }

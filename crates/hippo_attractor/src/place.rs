@@ -104,6 +104,7 @@ impl<T: Real> PlaceNetwork<T> {
         let n = self.params.n_theta;
         check::array_len("place activity", m.len(), n * n, format!("({n}, {n})"))?;
         check::array_finite("place activity", m)?;
+        check::array_non_negative("place activity", m)?;
         self.m.copy_from_slice(m);
         Ok(())
     }

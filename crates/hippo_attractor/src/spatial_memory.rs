@@ -81,7 +81,7 @@ impl SpatialMemoryParams {
         }
         check::positive("torus_period_m", self.torus_period_m)?;
         check::in_unit_interval("bump_threshold_frac", self.bump_threshold_frac)?;
-        check::finite("settle_s", self.settle_s)?;
+        check::non_negative("settle_s", self.settle_s)?;
         self.hd.validate()?;
         self.place.validate()?;
         for g in &self.grid {
@@ -325,6 +325,9 @@ impl<T: Real> SpatialMemory<T> {
 
     fn check_view(&self, v: &ViewInjection<T>) -> Result<()> {
         check::input("view strength", v.strength)?;
+        // A negative strength would inject the stored state inverted: the heading flips by π and the
+        // place code is pushed away from the stored place.
+        check::non_negative("view strength", v.strength)?;
         let nt = self.params.hd.n_theta;
         check::array_len(
             "view hd_profile",

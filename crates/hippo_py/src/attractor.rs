@@ -30,6 +30,22 @@ fn flat_f64(name: &str, a: &PyReadonlyArrayDyn<'_, f64>, shape: &[usize]) -> PyR
     Ok(v)
 }
 
+/// Like `flat_f64`, for activities: firing rates are never negative.
+fn flat_activity(
+    name: &str,
+    a: &PyReadonlyArrayDyn<'_, f64>,
+    shape: &[usize],
+) -> PyResult<Vec<f64>> {
+    let v = flat_f64(name, a, shape)?;
+    if let Some(i) = v.iter().position(|x| *x < 0.0) {
+        return Err(HippoNavError::new_err(format!(
+            "`{name}` holds a negative value ({}) at flat index {i}: activities are firing rates, ≥ 0",
+            v[i]
+        )));
+    }
+    Ok(v)
+}
+
 enum Engine {
     F32(Box<SpatialMemory<f32>>),
     F64(Box<SpatialMemory<f64>>),
@@ -203,13 +219,14 @@ impl PySpatialMemory {
     fn grid_activity<'py>(
         &self,
         py: Python<'py>,
-        index: usize,
+        index: i64,
     ) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        let index = module_index(index)?;
         with_engine!(&self.engine, sm, T, {
             let g = sm
                 .grids
                 .get(index)
-                .ok_or_else(|| module_index_error(index))?;
+                .ok_or_else(|| module_index_error(index as i64))?;
             let p = g.params();
             into_numpy(py, g.activity(), &[p.n_nu, p.n_nu, p.n_theta, p.n_theta])
         })
@@ -219,13 +236,14 @@ impl PySpatialMemory {
     fn grid_layer2<'py>(
         &self,
         py: Python<'py>,
-        index: usize,
+        index: i64,
     ) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        let index = module_index(index)?;
         with_engine!(&self.engine, sm, T, {
             let g = sm
                 .grids
                 .get(index)
-                .ok_or_else(|| module_index_error(index))?;
+                .ok_or_else(|| module_index_error(index as i64))?;
             let n = g.params().n_theta;
             into_numpy(py, g.layer2(), &[n, n])
         })
@@ -271,7 +289,8 @@ impl PySpatialMemory {
                 sm.params().place.clone(),
             )
         });
-        let hd = flat_f64("hd activity", &hd, &[hp.n_nu, hp.n_theta])?;
+        // Every array is checked before anything changes, so a bad state never half-loads.
+        let hd = flat_activity("hd activity", &hd, &[hp.n_nu, hp.n_theta])?;
         if grids.len() != 3 {
             return Err(HippoNavError::new_err(
                 "grid activities: expected one array per module (3)",
@@ -279,13 +298,13 @@ impl PySpatialMemory {
         }
         let mut g = Vec::with_capacity(3);
         for (a, p) in grids.iter().zip(&gp) {
-            g.push(flat_f64(
+            g.push(flat_activity(
                 "grid activity",
                 a,
                 &[p.n_nu, p.n_nu, p.n_theta, p.n_theta],
             )?);
         }
-        let place = flat_f64("place activity", &place, &[pp.n_theta, pp.n_theta])?;
+        let place = flat_activity("place activity", &place, &[pp.n_theta, pp.n_theta])?;
         with_engine!(&mut self.engine, sm, T, {
             sm.hd.set_activity(&to_vec::<T>(hd)).map_err(to_py_err)?;
             for (module, a) in sm.grids.iter_mut().zip(g) {
@@ -299,7 +318,12 @@ impl PySpatialMemory {
     }
 }
 
-fn module_index_error(index: usize) -> PyErr {
+/// A module index from Python: a negative one is an error naming the argument, not an overflow.
+fn module_index(index: i64) -> PyResult<usize> {
+    usize::try_from(index).map_err(|_| module_index_error(index))
+}
+
+fn module_index_error(index: i64) -> PyErr {
     HippoNavError::new_err(format!(
         "grid module index {index} out of range: there are 3 (0 = coarsest)"
     ))
@@ -382,14 +406,14 @@ fn fuse_modules(
 fn grid_recurrent_input_check<'py>(
     py: Python<'py>,
     config_json: &str,
-    module: usize,
+    module: i64,
     activity: PyReadonlyArrayDyn<'_, f64>,
 ) -> PyResult<ArrayPair<'py>> {
     let params: SpatialMemoryParams = serde_json::from_str(config_json)
         .map_err(|e| HippoNavError::new_err(format!("invalid engine config: {e}")))?;
     let p = params
         .grid
-        .get(module)
+        .get(module_index(module)?)
         .ok_or_else(|| module_index_error(module))?
         .clone();
     if p.n_units() > 20_000 {

@@ -51,7 +51,6 @@ class ClosureConfig(BaseModel):
     stereo_row_tolerance_px: float = Field(1.5, gt=0.0)
     stereo_guess_depth_m: float = Field(20.0, gt=0.0, description="depth whose disparity starts stereo KLT")
     forward_backward_px: float = Field(1.0, gt=0.0, description="max left-right-left KLT error")
-    seed: int = Field(0, description="seeds RANSAC so runs are repeatable")
 
 
 @dataclass(frozen=True)

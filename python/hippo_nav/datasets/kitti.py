@@ -8,10 +8,14 @@
 <root>/poses/XX.txt                      ground truth, sequences 00–10 only (see hippo_nav.io.poses)
 ```
 
-Frames load lazily: constructing the dataset reads calib.txt, times.txt and the header of one image (for
-the image size); each `__getitem__` reads one pair. With `available_only=True` and no explicit range the
-dataset yields the frames whose left and right images both exist (public copies often hold a prefix of a
-sequence only) and says so in `.note`. An explicit `start`/`stop` range must exist in full.
+Frames load lazily: constructing the dataset reads and checks calib.txt, times.txt, the ground truth (when
+`poses/XX.txt` exists) and one image (for the image size), so a malformed file fails before any frame is
+processed; each `__getitem__` reads one pair. With `available_only=True` and no `stop` the dataset yields
+the frames (from `start` on) whose left and right images both exist — public copies often hold a prefix
+of a sequence only — and says so in `.note`. An explicit `stop` asks for that range in full. Data problems
+that are not errors are listed in `.warnings` (and `.note`): frames missing inside the range of available
+ones (`missing_frames`), and images without a timestamp because times.txt is shorter than the image folder
+(`frames_without_timestamp`).
 
 `ground_truth()` returns the poses of the yielded frames as written in the file: `world` is camera 0 at
 frame 0 of the sequence (not at the first yielded frame). Rebase with `inv(gt[0]) @ gt` if needed.
@@ -19,6 +23,7 @@ frame 0 of the sequence (not at the first yielded frame). Rebase with `inv(gt[0]
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -75,7 +80,10 @@ def read_calibration(calib_path: Path, image_size_px: tuple[int, int]) -> Stereo
 
 
 def read_times(times_path: Path) -> np.ndarray:
-    """Timestamps (s) of every frame of the sequence, one per line, non-decreasing."""
+    """Timestamps (s) of every frame of the sequence, one per line, strictly increasing.
+
+    A repeated timestamp is an error too: it would give a frame no time to move in, and the TUM files of
+    the run could not be paired by timestamp (evo and this project's reader need increasing stamps)."""
     if not times_path.is_file():
         raise DatasetError(f"{times_path}: timestamps file not found (a KITTI sequence needs times.txt)")
     stamps: list[float] = []
@@ -86,8 +94,16 @@ def read_times(times_path: Path) -> np.ndarray:
             value = float(text)
         except ValueError:
             raise file_error(times_path, f"not a timestamp: {text.strip()[:40]!r}", number) from None
-        if not np.isfinite(value) or (stamps and value < stamps[-1]):
-            raise file_error(times_path, f"timestamp {value} is not finite or goes backwards", number)
+        if not np.isfinite(value):
+            raise file_error(times_path, f"timestamp {value} is not finite", number)
+        if stamps and value <= stamps[-1]:
+            how = "repeats" if value == stamps[-1] else "goes back from"
+            raise file_error(
+                times_path,
+                f"timestamp {value} {how} the previous one ({stamps[-1]}); timestamps must increase: "
+                "fix or remove that line",
+                number,
+            )
         stamps.append(value)
     if not stamps:
         raise file_error(times_path, "holds no timestamps")
@@ -135,6 +151,7 @@ class KittiOdometry:
             raise DatasetError(f"{self.sequence_dir}: sequence not found; present: {', '.join(present)}")
         if stride < 1:
             raise DatasetError(f"stride must be >= 1, got {stride}")
+        self.stride = int(stride)
         for camera in ("image_0", "image_1"):
             if not (self.sequence_dir / camera).is_dir():
                 raise DatasetError(
@@ -142,6 +159,9 @@ class KittiOdometry:
                 )
 
         all_times_s = read_times(self.sequence_dir / "times.txt")
+        self.warnings: list[str] = []
+        self.missing_frames: list[int] = []
+        self.frames_without_timestamp = 0
         self.frame_indices = self._select_frames(len(all_times_s), start, stop, stride, available_only)
         self.timestamps_s = all_times_s[self.frame_indices]
 
@@ -149,15 +169,26 @@ class KittiOdometry:
         height, width = first.shape
         self.calibration = read_calibration(self.sequence_dir / "calib.txt", (width, height))
         self._poses_path = self.root / "poses" / f"{self.sequence}.txt"
+        self._ground_truth = self._read_ground_truth(len(all_times_s))
+        if self.warnings:
+            self.note = "; ".join([self.note, *self.warnings] if self.note else self.warnings)
 
     def _image_path(self, camera: int, frame: int) -> Path:
         return self.sequence_dir / f"image_{camera}" / f"{frame:06d}.png"
+
+    def _image_numbers(self, camera: int) -> set[int]:
+        """Frame numbers of the images in `image_<camera>` (one directory listing, not a stat per frame)."""
+        numbers = set()
+        for entry in os.scandir(self.sequence_dir / f"image_{camera}"):
+            stem, _, suffix = entry.name.partition(".")
+            if suffix == "png" and stem.isdigit():
+                numbers.add(int(stem))
+        return numbers
 
     def _select_frames(
         self, n_frames: int, start: int | None, stop: int | None, stride: int, available_only: bool
     ) -> np.ndarray:
         times = self.sequence_dir / "times.txt"
-        explicit = start is not None or stop is not None
         lo = 0 if start is None else start
         hi = n_frames if stop is None else stop
         if not 0 <= lo < hi <= n_frames:
@@ -165,29 +196,57 @@ class KittiOdometry:
                 f"frame range [{lo}, {hi}) is empty or outside the sequence: {times} lists {n_frames} frames"
             )
         wanted = np.arange(lo, hi, stride, dtype=np.int64)
-        if explicit or not available_only:
+        left, right = self._image_numbers(0), self._image_numbers(1)
+        beyond = sum(1 for f in left if f >= n_frames)
+        if beyond:
+            self.frames_without_timestamp = beyond
+            self.warnings.append(
+                f"{beyond} image(s) in image_0 have no timestamp ({times} lists {n_frames} frames): "
+                "they are not used; complete times.txt to use them"
+            )
+        if stop is not None or not available_only:
             for frame in wanted:
-                for camera in (0, 1):
-                    if not self._image_path(camera, int(frame)).is_file():
+                for camera, numbers in ((0, left), (1, right)):
+                    if int(frame) not in numbers:
                         raise DatasetError(
                             f"{self._image_path(camera, int(frame))}: image missing for requested frame "
                             f"{frame}; choose a range whose images exist"
                         )
             return wanted
-        present = np.array(
-            [self._image_path(0, int(f)).is_file() and self._image_path(1, int(f)).is_file() for f in wanted]
-        )
+        present = np.array([int(f) in left and int(f) in right for f in wanted], dtype=bool)
         if not present.any():
             raise DatasetError(
-                f"{self.sequence_dir}: no frame has both image_0 and image_1 images; this loader needs stereo"
+                f"{self.sequence_dir}: no frame from {lo} on has both image_0 and image_1 images; "
+                "this loader needs stereo"
             )
         frames = wanted[present]
+        inside = wanted[(wanted > frames[0]) & (wanted < frames[-1])]
+        self.missing_frames = [int(f) for f in inside if not (int(f) in left and int(f) in right)]
+        if self.missing_frames:
+            shown = ", ".join(str(f) for f in self.missing_frames[:5])
+            more = f" and {len(self.missing_frames) - 5} more" if len(self.missing_frames) > 5 else ""
+            self.warnings.append(
+                f"{len(self.missing_frames)} frame(s) inside {frames[0]}..{frames[-1]} lack a stereo image "
+                f"and are skipped ({shown}{more}); the motion across them is measured as one step"
+            )
         if len(frames) < len(wanted):
             self.note = (
                 f"sequence {self.sequence}: stereo images exist for {len(frames)} of {len(wanted)} frames "
                 f"({frames[0]}..{frames[-1]}); using only those"
             )
         return frames
+
+    def _read_ground_truth(self, n_frames: int) -> np.ndarray | None:
+        """The whole ground-truth file, checked now (None when the sequence has none)."""
+        if not self._poses_path.is_file():
+            return None
+        poses = read_kitti_poses(self._poses_path)
+        if len(poses) != n_frames:
+            raise DatasetError(
+                f"{self._poses_path}: holds {len(poses)} poses but {self.sequence_dir / 'times.txt'} lists "
+                f"{n_frames} frames; the pose file does not match the sequence (one line per frame)"
+            )
+        return poses
 
     def __len__(self) -> int:
         return len(self.frame_indices)
@@ -216,15 +275,9 @@ class KittiOdometry:
             yield self[i]
 
     def ground_truth(self) -> np.ndarray | None:
-        if not self._poses_path.is_file():
+        if self._ground_truth is None:
             return None
-        poses = read_kitti_poses(self._poses_path)
-        if int(self.frame_indices[-1]) >= len(poses):
-            raise DatasetError(
-                f"{self._poses_path}: holds {len(poses)} poses but frame {int(self.frame_indices[-1])} is "
-                "needed; the pose file does not match the sequence"
-            )
-        return poses[self.frame_indices]
+        return self._ground_truth[self.frame_indices]
 
     @staticmethod
     def detect(path: Path) -> bool:

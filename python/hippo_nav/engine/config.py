@@ -30,8 +30,22 @@ def _merge(defaults: Any, given: Any) -> Any:
     return given
 
 
+def _grid_overrides(given: dict[str, Any]) -> list[dict[str, Any]]:
+    """`grid` given by module name instead of as a list of all three: `{"dorsal": {"nu_max": 0.1}}`
+    changes one field of one module, `{"all": {...}}` the same fields of every module."""
+    known = {"all", *MODULE_NAMES}
+    unknown = sorted(set(given) - known)
+    if unknown:
+        raise ValueError(
+            f"grid modules are named {', '.join(MODULE_NAMES)} (or 'all'), not {', '.join(unknown)}"
+        )
+    common = given.get("all", {})
+    return [{**common, **given.get(name, {})} for name in MODULE_NAMES]
+
+
 class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+    # NaN and infinity are refused here, naming the field, rather than reaching the engine as JSON nulls.
+    model_config = ConfigDict(extra="forbid", populate_by_name=True, allow_inf_nan=False)
 
 
 class HdConfig(_Section):
@@ -91,6 +105,8 @@ class EngineConfig(_Section):
     @classmethod
     def _fill_from_rust_defaults(cls, data: Any) -> Any:
         if isinstance(data, dict):
+            if isinstance(data.get("grid"), dict):
+                data = {**data, "grid": _grid_overrides(data["grid"])}
             return _merge(rust_defaults(), data)
         return data
 

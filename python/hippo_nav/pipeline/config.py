@@ -28,7 +28,7 @@ import json
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from hippo_nav._core import HippoNavError
 from hippo_nav.closure import ClosureConfig
@@ -108,6 +108,12 @@ class MotionLimits(_Section):
 
     max_speed_m_s: float = Field(35.0, gt=0.0)
     max_yaw_rate_rad_s: float = Field(3.0, gt=0.0)
+    max_gap_s: float = Field(
+        1.0,
+        gt=0.0,
+        description="a longer time between frames is a gap: flagged, and the networks integrate the "
+        "odometry's step over this time at most instead of the whole gap",
+    )
 
 
 class OutputConfig(_Section):
@@ -116,14 +122,19 @@ class OutputConfig(_Section):
         None,
         description="frames (0-based positions in the run) of the neural state panels; None: first, middle, last",
     )
-    rate_map_bin_m: float = Field(4.0, gt=0.0, description="spatial bin of the firing-rate maps")
+    rate_map_bin_m: float = Field(
+        4.0,
+        ge=0.1,
+        le=1000.0,
+        description="spatial bin of the firing-rate maps (0.1–1000 m: finer bins would need gigabytes over a city)",
+    )
     save_map: bool = True
 
 
 class PipelineConfig(_Section):
     """Everything a run needs besides its input."""
 
-    seed: int = 0
+    seed: int = Field(0, ge=0, le=2**31 - 1, description="one seed for every random choice of the run")
     engine: EngineConfig = Field(default_factory=EngineConfig)
     lesions: LesionConfig = Field(default_factory=LesionConfig)
     vo: dict[str, Any] = Field(default_factory=dict)
@@ -135,6 +146,15 @@ class PipelineConfig(_Section):
     correction: CorrectionConfig = Field(default_factory=CorrectionConfig)
     limits: MotionLimits = Field(default_factory=MotionLimits)
     output: OutputConfig = Field(default_factory=OutputConfig)
+
+    @model_validator(mode="after")
+    def _one_seed(self) -> PipelineConfig:
+        # One seed for the whole run: the VO's own seed field is set from it.
+        if "seed" in self.vo and self.vo["seed"] != self.seed:
+            raise ValueError(
+                f"vo.seed ({self.vo['seed']}) differs from seed ({self.seed}); set the seed once, at the top level"
+            )
+        return self
 
     def engine_config(self) -> EngineConfig:
         """The engine config with the lesions of both `engine.lesioned` and `lesions` applied."""
@@ -157,11 +177,19 @@ class PipelineConfig(_Section):
         return self.model_copy(update={"lesions": lesions})
 
 
+def describe_validation_error(err: ValidationError) -> str:
+    """A pydantic error as one line naming every bad field and its value: `a.b: message (got X)`."""
+    return _describe(err)
+
+
 def _describe(err: ValidationError) -> str:
     parts = []
     for e in err.errors():
         where = ".".join(str(p) for p in e["loc"]) or "(top level)"
-        parts.append(f"{where}: {e['msg']}")
+        message = e["msg"].replace("\n", " ")
+        given = e.get("input")
+        shown = "" if isinstance(given, (dict, list)) or given is None else f" (got {given!r})"
+        parts.append(f"{where}: {message}{shown}")
     return "; ".join(parts)
 
 

@@ -17,12 +17,15 @@ from hippo_nav._core import HippoNavError
 
 def make_odometry(calibration: Any, params: dict[str, Any]) -> Any:
     """The stereo VO for `calibration`, with `params` (the config's `vo` section) overriding its defaults."""
+    from pydantic import ValidationError
+
+    from hippo_nav.pipeline.config import describe_validation_error
     from hippo_nav.vo import StereoOdometry, VoParams
 
     try:
         vo_params = VoParams.model_validate(params)
-    except ValueError as err:
-        raise HippoNavError(f"config section `vo`: {err}") from None
+    except ValidationError as err:
+        raise HippoNavError(f"config section vo: {describe_validation_error(err)}") from None
     return StereoOdometry(calibration, vo_params)
 
 
@@ -36,10 +39,14 @@ def make_view_cells(params: dict[str, Any], calibration: Any = None) -> Any:
     params = dict(params)
     if calibration is not None and "field_of_view_rad" not in params:
         params["field_of_view_rad"] = field_of_view_rad(calibration.fx, calibration.image_size_px[0])
+    from pydantic import ValidationError
+
+    from hippo_nav.pipeline.config import describe_validation_error
+
     try:
         view_params = ViewCellConfig.model_validate(params)
-    except ValueError as err:
-        raise HippoNavError(f"config section `views`: {err}") from None
+    except ValidationError as err:
+        raise HippoNavError(f"config section views: {describe_validation_error(err)}") from None
     return ViewCells(view_params)
 
 

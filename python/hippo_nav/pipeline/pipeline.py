@@ -33,7 +33,10 @@ after the current frame; everything for the frames processed so far is still cor
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import signal
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -83,9 +86,18 @@ class Pipeline:
         self.progress = progress
         cv2.setRNGSeed(int(self.config.seed))
         self.engine = SpatialMemory(self.config.engine_config())
+        # The seed places the networks' bumps at the start (an animal's grid phases and heading code are
+        # arbitrary where it starts); everything in the map frame is relative to them. OpenCV's RANSAC
+        # uses a fixed internal seed, so the odometry itself is deterministic whatever the seed.
+        rng = np.random.default_rng(self.config.seed)
+        self.initial_heading_rad = float(rng.uniform(-np.pi, np.pi))
+        initial_phase_rad = rng.uniform(0.0, 2 * np.pi, size=2)
+        self.engine.reset(self.initial_heading_rad, (float(initial_phase_rad[0]), float(initial_phase_rad[1])))
         # Front-end parts can be given (e.g. another VO in a notebook); by default they come from the config.
         self.odometry = (
-            odometry if odometry is not None else make_odometry(dataset.calibration, self.config.vo)
+            odometry
+            if odometry is not None
+            else make_odometry(dataset.calibration, {**self.config.vo, "seed": self.config.seed})
         )
         self.views = (
             view_cells if view_cells is not None else make_view_cells(self.config.views, dataset.calibration)
@@ -111,46 +123,62 @@ class Pipeline:
         self._closure_odometer_m = -np.inf
         n = len(dataset)
         wanted = self.config.output.state_frames
+        outside = [p for p in (wanted or []) if not 0 <= p < n]
+        if outside:
+            raise HippoNavError(
+                f"output.state_frames: {outside} lie outside this run of {n} frames (positions 0 to {n - 1})"
+            )
         self._state_frames = set(wanted if wanted is not None else [0, n // 2])
         self._unit_stride = max(self.config.engine.place.n_theta // 8, 1)
 
     # ----------------------------------------------------------------------------------------------
-    def run(self, out_dir: str | Path | None = None) -> RunResult:
+    def run(self, out_dir: str | Path | None = None, overwrite: bool = False) -> RunResult:
         """Process every frame, correct the map, and (when `out_dir` is given) write the results folder.
 
-        Ctrl-C stops after the current frame; the frames processed so far are corrected and written, and
-        the result says `interrupted=True`.
+        The results folder is checked (and created) before the first frame; one that holds files is
+        refused unless `overwrite` (which clears only what a run writes). Ctrl-C, SIGTERM and SIGHUP stop
+        after the current frame; the frames processed so far are corrected and written, and the result says
+        `interrupted=True` (`metrics["interrupted_by"]` names the signal). Interrupted before the first
+        frame, `KeyboardInterrupt` propagates (nothing to write).
         """
-        bar = None
-        if self.progress:
-            from tqdm import tqdm
+        if out_dir is not None:
+            from hippo_nav.pipeline.results import prepare_results_folder
 
-            bar = tqdm(total=len(self.dataset), desc=self.dataset_name, unit="frame", dynamic_ncols=True)
+            out_dir = prepare_results_folder(out_dir, overwrite)
+        for warning in getattr(self.dataset, "warnings", []):
+            log.warning("%s", warning)
         interrupted = False
         stopped_by: DatasetError | None = None
-        loops = 0
-        try:
-            for i in range(len(self.dataset)):
-                self._process(i)
-                if bar is not None:
-                    loops += self.record.frames[-1].loop_closure is not None
-                    bar.update()
-                    bar.set_postfix(vertices=len(self.map), views=len(self.views), loops=loops, refresh=False)
-        except KeyboardInterrupt:
-            interrupted = True
-            log.warning("interrupted after %d frames; writing what was processed", len(self.record))
-        except DatasetError as err:
-            # A missing or corrupt frame mid-sequence: keep (and write) everything before it, then report.
-            if len(self.record) == 0:
-                raise
-            interrupted, stopped_by = True, err
-        finally:
-            if bar is not None:
-                bar.close()
-        if len(self.record) == 0:
-            raise HippoNavError("no frame was processed; nothing to write")
+        with _stop_on_signals() as caught, _progress(self) as bar:
+            try:
+                loops = 0
+                for i in range(len(self.dataset)):
+                    self._process(i)
+                    if bar is not None:
+                        loops += self.record.frames[-1].loop_closure is not None
+                        bar.update()
+                        bar.set_postfix(
+                            vertices=len(self.map), views=len(self.views), loops=loops, refresh=False
+                        )
+            except KeyboardInterrupt:
+                if len(self.record) == 0:
+                    raise
+                interrupted = True
+                log.warning(
+                    "interrupted (%s) after %d frames; writing what was processed",
+                    caught.get("signal", "SIGINT"),
+                    len(self.record),
+                )
+            except DatasetError as err:
+                # A missing or corrupt frame mid-sequence: keep (and write) everything before it, then report.
+                if len(self.record) == 0:
+                    raise
+                interrupted, stopped_by = True, err
         self._snapshot(len(self.record) - 1, final=True)
-        result = self._finish(out_dir, interrupted, stopped_by=None if stopped_by is None else str(stopped_by))
+        interrupted_by = caught.get("signal", "SIGINT") if interrupted and stopped_by is None else None
+        result = self._finish(
+            out_dir, interrupted, None if stopped_by is None else str(stopped_by), interrupted_by
+        )
         if stopped_by is not None:
             where = f"written to {out_dir}" if out_dir is not None else "returned in the exception's `result`"
             error = DatasetError(
@@ -177,6 +205,7 @@ class Pipeline:
         planar = se2_between(previous_planar, planar_from_pose(self._vo_pose))
         dt_s = 0.0 if self._last_timestamp_s is None else float(frame.timestamp_s - self._last_timestamp_s)
         self._last_timestamp_s = float(frame.timestamp_s)
+        data_flags = self._data_flags(frame, dt_s)
         clock = self._lap("vo", clock)
 
         # 2. Local view cells: which view, and what (if anything) it injects.
@@ -219,8 +248,29 @@ class Pipeline:
             self._vertex_cells.setdefault(int(outcome.vertex), []).append(int(obs.cell_id))
         clock = self._lap("map", clock)
 
-        self._record(frame, step, vo_status, flag, yaw_rate, speed, obs, strength, readout, code, outcome, note)
+        self._record(
+            frame, step, vo_status, flag, yaw_rate, speed, obs, strength, readout, code, outcome, note, data_flags
+        )
         self._lap("record", clock)
+
+    def _data_flags(self, frame: Any, dt_s: float) -> str:
+        """What is odd about this frame's place in the data: sequence frames skipped before it (holes in
+        the images), or a time gap. Both are logged once here and flagged in frames.csv."""
+        flags = []
+        if self.record.frames:
+            stride = int(getattr(self.dataset, "stride", 1) or 1)
+            skipped = int(frame.index) - self.record.frames[-1].frame_index - stride
+            if skipped > 0:
+                flags.append(f"skipped_frames:{skipped}")
+                log.warning("frame %s: %d sequence frame(s) before it are missing", frame.index, skipped)
+        if dt_s > self.config.limits.max_gap_s:
+            flags.append(f"time_gap:{dt_s:.3g}s")
+            log.warning(
+                "frame %s: %.3g s since the previous frame (a gap); its motion is not extrapolated",
+                frame.index,
+                dt_s,
+            )
+        return ";".join(flags)
 
     def _lap(self, stage: str, since: float) -> float:
         now = time.perf_counter()
@@ -297,6 +347,11 @@ class Pipeline:
         flag = "ok" if vo_status in ("ok", "first") else f"vo:{vo_status}"
         if dt_s <= 0:
             return self.engine.readout(), 0.0, 0.0, flag
+        if dt_s > self.config.limits.max_gap_s:
+            # Integrate the measured step over the longest plausible frame time, not over the whole gap
+            # (the networks cannot represent slow motion over minutes, and need not).
+            dt_s = self.config.limits.max_gap_s
+            flag = "gap"
         forward_m, left_m, yaw_rad = (float(v) for v in planar)
         yaw_rate = yaw_rad / dt_s
         speed = float(np.copysign(np.hypot(forward_m, left_m), forward_m)) / dt_s
@@ -354,7 +409,7 @@ class Pipeline:
 
     # ----------------------------------------------------------------------------------------------
     def _record(
-        self, frame, step, vo_status, flag, yaw_rate, speed, obs, strength, readout, code, outcome, note
+        self, frame, step, vo_status, flag, yaw_rate, speed, obs, strength, readout, code, outcome, note, data_flags
     ) -> None:
         agent = outcome.world_from_agent
         offset = outcome.vertex_from_agent
@@ -384,6 +439,7 @@ class Pipeline:
                 vertex_created=bool(outcome.created),
                 loop_closure=outcome.loop_closure,
                 closure_note=note,
+                data_flags=data_flags,
                 online_pose=agent_pose,
                 vertex_from_agent=offset_pose,
             )
@@ -441,7 +497,13 @@ class Pipeline:
             )
         return {"method": cfg.method, **dict(report)}
 
-    def _finish(self, out_dir: str | Path | None, interrupted: bool, stopped_by: str | None) -> RunResult:
+    def _finish(
+        self,
+        out_dir: str | Path | None,
+        interrupted: bool,
+        stopped_by: str | None,
+        interrupted_by: str | None = None,
+    ) -> RunResult:
         """Correct the map, assemble the trajectories, evaluate, and write the results folder."""
         from hippo_nav.pipeline.frontend import resolved_frontend_params
         from hippo_nav.pipeline.results import evaluate, write_results
@@ -454,8 +516,17 @@ class Pipeline:
         vo = np.stack(record.column("vo_world_from_camera"))
         online = np.stack(record.column("online_pose"))
         corrected = corrected_track(record, export["poses"])
+        # The networks' own estimate in the map frame: their displacement and heading code relative to
+        # the heading code they started with.
+        h0 = self.initial_heading_rad
+        displacement = np.asarray(record.column("place_position_m"))
+        c, s = np.cos(h0), np.sin(h0)
         neural = np.column_stack(
-            [np.asarray(record.column("place_position_m")), np.asarray(record.column("heading_rad"))]
+            [
+                c * displacement[:, 0] + s * displacement[:, 1],
+                -s * displacement[:, 0] + c * displacement[:, 1],
+                np.asarray(record.column("heading_rad")) - h0,
+            ]
         )
         gt = self.dataset.ground_truth()
         if gt is not None:
@@ -475,10 +546,52 @@ class Pipeline:
         )
         result.metrics = evaluate(self, result, correction, stopped_by)
         result.metrics["timing"]["correction_s"] = correction_s
+        if interrupted_by is not None:
+            result.metrics["interrupted_by"] = interrupted_by
         if out_dir is not None:
             frontend = resolved_frontend_params(self.odometry, self.views)
             write_results(result, Path(out_dir), self.config, frontend, self.map)
         return result
+
+
+@contextlib.contextmanager
+def _stop_on_signals():
+    """SIGTERM and SIGHUP (what schedulers and `docker stop` send) stop the run like Ctrl-C: the frames
+    processed so far are still written. Yields a dict that names the signal caught. Only the main thread
+    can install handlers; elsewhere the default behaviour stays."""
+    caught: dict[str, str] = {}
+
+    def stop(signum, _frame):
+        caught["signal"] = signal.Signals(signum).name
+        raise KeyboardInterrupt
+
+    wanted = [s for s in (getattr(signal, "SIGTERM", None), getattr(signal, "SIGHUP", None)) if s is not None]
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for s in wanted:
+            previous[s] = signal.signal(s, stop)
+    try:
+        yield caught
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+
+
+@contextlib.contextmanager
+def _progress(pipeline: Pipeline):
+    """A tqdm bar (or None), with log lines routed through it so that warnings never glue onto the bar."""
+    if not pipeline.progress:
+        yield None
+        return
+    from tqdm import tqdm
+    from tqdm.contrib.logging import logging_redirect_tqdm
+
+    bar = tqdm(total=len(pipeline.dataset), desc=pipeline.dataset_name, unit="frame", dynamic_ncols=True)
+    try:
+        with logging_redirect_tqdm():
+            yield bar
+    finally:
+        bar.close()
 
 
 def corrected_track(record: RunRecord, vertex_poses: np.ndarray) -> np.ndarray:
@@ -524,6 +637,7 @@ def run(
     config: PipelineConfig | None = None,
     progress: bool = True,
     odometry: Any = None,
+    overwrite: bool = False,
 ) -> RunResult:
     """The `hippo-nav run` command as a function: open the input, run the pipeline, write `out_dir`.
 
@@ -535,4 +649,4 @@ def run(
         log.info("%s", note)
     if callable(odometry) and not hasattr(odometry, "process"):
         odometry = odometry(dataset)
-    return Pipeline(dataset, config, progress=progress, odometry=odometry).run(out_dir)
+    return Pipeline(dataset, config, progress=progress, odometry=odometry).run(out_dir, overwrite=overwrite)

@@ -39,12 +39,14 @@ import logging
 import math
 import resource
 import sys
+import tempfile
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from hippo_nav._core import HippoNavError
 from hippo_nav.io import write_kitti_poses, write_tum
 from hippo_nav.metrics import KITTI_SEGMENT_LENGTHS_M, ate_rmse, relative_errors_kitti, trajectory_distances_m
 from hippo_nav.pipeline.config import PipelineConfig, resolved_config_dict
@@ -55,9 +57,54 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("hippo_nav.pipeline")
 
+RESULT_FILES = (
+    "config.json", "frames.csv", "bump_table.csv", "map.bin", "map.g2o", "metrics.json",
+    "cognitive_map.png", "rate_maps.png",
+)  # fmt: skip
+RESULT_PATTERNS = ("trajectory_*.kitti.txt", "trajectory_*.tum.txt", "ground_truth.*.txt", "neural_state_*.png")
+"""What a run writes into its results folder (and what `--overwrite` clears, nothing else)."""
+
 CLOSURE_TRUE_M = 5.0
 CLOSURE_COVER_M = 10.0
 TIMING_WINDOW_FRAMES = 100
+
+
+def prepare_results_folder(out: str | Path, overwrite: bool = False) -> Path:
+    """Check (and create) the results folder before the first frame, so a run never finishes its frames
+    only to find it cannot write them. A folder holding files is refused unless `overwrite`, which
+    removes the files an earlier run wrote there (`RESULT_FILES`, `RESULT_PATTERNS`) and nothing else."""
+    if str(out).strip() == "":
+        raise HippoNavError("the results folder is an empty path; give --out a folder, e.g. --out runs/x")
+    path = Path(out)
+    if path.exists() and not path.is_dir():
+        raise HippoNavError(f"results folder {path} is a file; give --out a folder path")
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        raise HippoNavError(
+            f"results folder {path} cannot be created: a part of that path is a file; choose another --out"
+        ) from None
+    except PermissionError:
+        raise HippoNavError(f"results folder {path} cannot be created here (permission denied)") from None
+    try:
+        with tempfile.NamedTemporaryFile(dir=path, prefix=".write-check-"):
+            pass
+    except OSError as err:
+        raise HippoNavError(f"results folder {path} is not writable ({err.strerror}); choose another --out") from None
+    present = sorted(p.name for p in path.iterdir())
+    if present and not overwrite:
+        shown = ", ".join(present[:4]) + (", …" if len(present) > 4 else "")
+        raise HippoNavError(
+            f"results folder {path} is not empty ({shown}); choose another --out, or pass --overwrite "
+            "to replace an earlier run's results there"
+        )
+    if overwrite:
+        for name in RESULT_FILES:
+            (path / name).unlink(missing_ok=True)
+        for pattern in RESULT_PATTERNS:
+            for old in path.glob(pattern):
+                old.unlink(missing_ok=True)
+    return path
 
 
 def _segment_lengths(gt: np.ndarray) -> tuple[float, ...]:
@@ -84,6 +131,10 @@ def _clean(value: Any) -> Any:
 
 def trajectory_errors(gt: np.ndarray, estimates: dict[str, np.ndarray]) -> dict[str, Any]:
     """ATE (3-D and 2-D, SE(3)-aligned) and KITTI relative errors of each estimate against `gt`."""
+    if len(gt) < 2:
+        raise HippoNavError("a single frame has no trajectory to compare")
+    if float(trajectory_distances_m(gt)[-1]) < 1e-6:
+        raise HippoNavError("the ground truth never moves, so no alignment is defined")
     lengths = _segment_lengths(gt)
     step = max(1, min(10, len(gt) // 20))
     out: dict[str, Any] = {
@@ -92,17 +143,23 @@ def trajectory_errors(gt: np.ndarray, estimates: dict[str, np.ndarray]) -> dict[
         "segment_step_frames": step,
     }
     for name, est in estimates.items():
-        entry: dict[str, Any] = {
-            "ate_3d_m": ate_rmse(gt, est, planar=False, align="se3"),
-            "ate_2d_m": ate_rmse(gt, est, planar=True, align="se3"),
-        }
-        if lengths:
-            rel = relative_errors_kitti(gt, est, lengths=lengths, step=step)
-            entry.update(
-                t_rel_percent=rel["t_rel_percent"],
-                r_rel_deg_per_100m=rel["r_rel_deg_per_100m"],
-                segments=rel["segments"],
-            )
+        try:
+            entry: dict[str, Any] = {
+                "ate_3d_m": ate_rmse(gt, est, planar=False, align="se3"),
+                "ate_2d_m": ate_rmse(gt, est, planar=True, align="se3"),
+            }
+            if lengths:
+                rel = relative_errors_kitti(gt, est, lengths=lengths, step=step)
+                entry.update(
+                    t_rel_percent=rel["t_rel_percent"],
+                    r_rel_deg_per_100m=rel["r_rel_deg_per_100m"],
+                    segments=rel["segments"],
+                )
+        except HippoNavError as err:
+            # One estimate that cannot be scored (e.g. the networks' estimate with every module lesioned
+            # never moves) must not cost the others their numbers.
+            entry = {"unavailable": str(err)}
+            log.warning("errors of the %s trajectory unavailable: %s", name, err)
         out[name] = entry
     return out
 
@@ -187,6 +244,13 @@ def evaluate(pipeline: Pipeline, result: RunResult, correction: dict[str, Any], 
     notes = [note for note in record.column("closure_note") if note]
     statuses, counts = np.unique(record.column("vo_status"), return_counts=True)
     note_kinds, note_counts = np.unique(notes, return_counts=True) if notes else ([], [])
+    low_texture = int(sum(s in ("low_texture", "failed") for s in record.column("vo_status")))
+    if n >= 10 and low_texture > 0.5 * n:
+        log.warning(
+            "%d of %d frames (%.0f %%) had too little usable texture for the odometry (dark, blurred or "
+            "covered images?): the trajectory leans on the motion prior there",
+            low_texture, n, 100.0 * low_texture / n,
+        )  # fmt: skip
     metrics: dict[str, Any] = {
         "sequence": result.name,
         "note": getattr(pipeline.dataset, "note", ""),
@@ -210,15 +274,41 @@ def evaluate(pipeline: Pipeline, result: RunResult, correction: dict[str, Any], 
         "closure_attempts": {str(k): int(c) for k, c in zip(note_kinds, note_counts)},
         "vo_status_counts": {str(s): int(c) for s, c in zip(statuses, counts)},
         "motion_flags": int(sum(f != "ok" for f in record.column("motion_flag"))),
+        "data": {
+            "warnings": list(getattr(pipeline.dataset, "warnings", [])),
+            "missing_frames": len(getattr(pipeline.dataset, "missing_frames", [])),
+            "frames_without_timestamp": int(getattr(pipeline.dataset, "frames_without_timestamp", 0)),
+            "frames_after_skipped_frames": sum("skipped_frames" in f for f in record.column("data_flags")),
+            "time_gaps": sum("time_gap" in f for f in record.column("data_flags")),
+            "low_texture_frames": low_texture,
+        },
         "correction": correction,
         "timing": timing(record),
     }
     gt = result.ground_truth
+    unavailable: dict[str, str] = {}
     if gt is not None:
         metrics["distance_gt_m"] = float(trajectory_distances_m(gt)[-1])
-        metrics["errors"] = trajectory_errors(gt, result.estimates)
-        metrics["closure_quality"] = closure_quality(gt, record, pipeline.config.map.min_loop_separation_m)
+        metrics["errors"] = _guarded("errors", unavailable, lambda: trajectory_errors(gt, result.estimates))
+        metrics["closure_quality"] = _guarded(
+            "closure_quality",
+            unavailable,
+            lambda: closure_quality(gt, record, pipeline.config.map.min_loop_separation_m),
+        )
+    if unavailable:
+        metrics["unavailable"] = unavailable
     return metrics
+
+
+def _guarded(what: str, unavailable: dict[str, str], compute: Any) -> Any:
+    """`compute()`, or None with the reason recorded in `unavailable[what]`: a metric that cannot be
+    computed (one frame, a trajectory that never moved) must not cost the run's other results."""
+    try:
+        return compute()
+    except Exception as err:  # noqa: BLE001 - recorded in metrics.json and logged, never swallowed silently
+        unavailable[what] = f"{type(err).__name__}: {err}"
+        log.warning("metric %s unavailable: %s", what, unavailable[what])
+        return None
 
 
 def bump_rows(record: RunRecord) -> list[dict[str, Any]]:
@@ -268,7 +358,7 @@ def _write_frames_csv(path: Path, record: RunRecord) -> None:
                 "frame", "timestamp_s", "vo_status", "motion_flag", "yaw_rate_rad_s", "speed_m_s",
                 "view_cell", "view_status", "view_difference", "injection_strength", "heading_rad",
                 "place_code_x_rad", "place_code_y_rad", "vertex", "vertex_created", "loop_closure",
-                "closure_note",
+                "closure_note", "data_flags",
             ]
         )  # fmt: skip
         for r in record.frames:
@@ -280,6 +370,7 @@ def _write_frames_csv(path: Path, record: RunRecord) -> None:
                     f"{r.view_difference:.4f}", f"{r.injection_strength:.4g}", f"{r.heading_rad:.6f}",
                     f"{r.place_code_rad[0]:.6f}", f"{r.place_code_rad[1]:.6f}", r.vertex,
                     int(r.vertex_created), "" if loop is None else f"{loop[0]}->{loop[1]}", r.closure_note,
+                    r.data_flags,
                 ]
             )  # fmt: skip
 
@@ -336,5 +427,9 @@ def write_results(
         except KeyboardInterrupt:
             log.warning("figures interrupted; the other results are written")
             metrics["figures"] = []
+        except Exception as err:  # noqa: BLE001 - a figure must never cost the written results
+            log.warning("figures failed (%s: %s); the other results are written", type(err).__name__, err)
+            metrics["figures"] = []
+            metrics.setdefault("unavailable", {})["figures"] = f"{type(err).__name__}: {err}"
         metrics["timing"]["figures_s"] = time.perf_counter() - clock
     (out / "metrics.json").write_text(json.dumps(_clean(metrics), indent=2) + "\n")

@@ -165,12 +165,22 @@ def render_cached(world_from_camera: np.ndarray, out_root: str | Path, sequence:
     }
     params = {"poses_sha": _digest(poses), **settings}
     image_dirs = [root / "sequences" / sequence / cam for cam in ("image_0", "image_1")]
-    complete = all(d.is_dir() and len(list(d.glob("*.png"))) == len(poses) for d in image_dirs)
-    if complete and rendered_params(root, sequence) == params:
+    complete = all(d.is_dir() and len(list(d.glob("[0-9]*.png"))) == len(poses) for d in image_dirs)
+    if complete and rendered_params(root, sequence) == params and _all_readable(image_dirs):
         return root
     render_sequence(poses, root, sequence, **kw)
     (root / "sequences" / sequence / "render.json").write_text(json.dumps(params, sort_keys=True))
     return root
+
+
+def _all_readable(image_dirs: list[Path]) -> bool:
+    """Every cached image decodes: a truncated or corrupted file makes the cache be rendered again
+    instead of failing every later run."""
+    for directory in image_dirs:
+        for path in directory.glob("[0-9]*.png"):
+            if cv2.imread(str(path), cv2.IMREAD_UNCHANGED) is None:
+                return False
+    return True
 
 
 def _digest(array: np.ndarray) -> str:

@@ -71,6 +71,12 @@ class VoParams(BaseModel):
     max_yaw_rate_rad_s: float = Field(3.0, gt=0.0, description="a faster turn is rejected (prior used)")
     seed: int = Field(0, description="seeds OpenCV's RNG (RANSAC) on reset, so runs are repeatable")
     default_dt_s: float = Field(0.1, gt=0.0, description="frame interval used when timestamps do not advance")
+    max_prior_gap_s: float = Field(
+        1.0,
+        gt=0.0,
+        description="after a longer gap between frames the motion prior is 'no motion': a gap is not "
+        "extrapolated into motion (100 s at the last speed would be a kilometre)",
+    )
 
 
 @dataclass(frozen=True)
@@ -158,7 +164,10 @@ class StereoOdometry:
         if not (np.isfinite(dt_s) and dt_s > 0):
             dt_s = self.params.default_dt_s
         # The prior scaled to this frame interval (constant velocity through a dropped frame).
-        prior = _scale_step(self._prior_step, dt_s / self._prior_dt_s)
+        if dt_s > self.params.max_prior_gap_s:
+            prior = np.eye(4)
+        else:
+            prior = _scale_step(self._prior_step, dt_s / self._prior_dt_s)
         step, status, n_tracked, n_inliers, rmse = self._measure(self._previous, current, prior)
         if status == "ok" and not self._plausible(step, dt_s):
             status = "rejected"

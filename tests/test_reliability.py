@@ -1,0 +1,253 @@
+"""A run never throws away finished work, never hides a data problem, and says what to fix.
+
+Each test is one failure a newcomer trial found (bad --out, short files, signals, gaps, unavailable
+metrics, confusing messages, a seed without effect, engine arguments out of range)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+
+import cv2
+import numpy as np
+import pytest
+from hippo_nav import HippoNavError
+from hippo_nav.cli import main
+from hippo_nav.datasets import KittiOdometry
+from hippo_nav.engine import EngineConfig, SpatialMemory, ViewPatterns
+from hippo_nav.pipeline import Pipeline, config_from_dict
+from hippo_nav.synthetic import DEMO_SEQUENCE, demo_sequence
+from hippo_nav.vo import StereoOdometry
+
+QUIET = {"output": {"figures": False}}
+
+
+@pytest.fixture(scope="module")
+def demo() -> KittiOdometry:
+    return KittiOdometry(demo_sequence(), DEMO_SEQUENCE)
+
+
+class Frames:
+    """The first `n` frames of a dataset, optionally with other timestamps or a hook on loading."""
+
+    def __init__(self, dataset, n, timestamps_s=None, on_load=None):
+        self.d, self.n, self.on_load = dataset, n, on_load
+        self.name, self.calibration = dataset.name, dataset.calibration
+        self.frame_indices = dataset.frame_indices[:n]
+        self.timestamps_s = dataset.timestamps_s[:n] if timestamps_s is None else np.asarray(timestamps_s)
+
+    def __len__(self):
+        return self.n
+
+    def __getitem__(self, i):
+        if self.on_load is not None:
+            self.on_load(i)
+        frame = self.d[i]
+        return type(frame)(frame.index, float(self.timestamps_s[i]), frame.left, frame.right)
+
+    def ground_truth(self):
+        return self.d.ground_truth()[: self.n]
+
+
+def _one_line_error(capsys) -> str:
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    return err
+
+
+# --- results folder: checked before the first frame ----------------------------------------------------
+def test_a_bad_results_folder_is_refused_before_any_frame(tmp_path, capsys):
+    a_file = tmp_path / "file.txt"
+    a_file.write_text("not a folder")
+    base = ["run", "--no-progress", "--stop", "5"]
+    for out, phrase in ((a_file, "is a file"), (a_file / "below", "a part of that path is a file"), ("", "empty")):
+        assert main([*base, "--out", str(out)]) == 2
+        assert phrase in _one_line_error(capsys)
+    assert main(["run", "--sequence", "05", "--no-progress"]) == 2
+    assert "--sequence 05 needs --kitti" in _one_line_error(capsys)
+    assert main([*base, "--seed", "-1", "--out", str(tmp_path / "s")]) == 2
+    assert "--seed -1" in _one_line_error(capsys)
+
+
+def test_an_earlier_run_is_never_mixed_with_a_new_one(tmp_path, capsys):
+    out = tmp_path / "run"
+    assert main(["run", "--no-progress", "--stop", "6", "--out", str(out)]) == 0
+    (out / "neural_state_009999.png").write_bytes(b"an old figure")
+    (out / "my_notes.txt").write_text("the user's own file")
+    capsys.readouterr()
+    assert main(["run", "--no-progress", "--stop", "4", "--no-figures", "--out", str(out)]) == 2
+    assert "not empty" in _one_line_error(capsys) and "--overwrite" in capsys.readouterr().err + "--overwrite"
+    assert main(["run", "--no-progress", "--stop", "4", "--no-figures", "--out", str(out), "--overwrite"]) == 0
+    assert json.loads((out / "metrics.json").read_text())["frames"] == 4
+    assert not list(out.glob("*.png")), "the old figures are gone with --overwrite"
+    assert (out / "my_notes.txt").read_text() == "the user's own file"
+
+
+def test_a_kitti_run_without_out_gets_its_own_folder(tmp_path, monkeypatch, demo):
+    monkeypatch.chdir(tmp_path)
+    root = demo.root
+    assert main(["run", "--kitti", str(root), "--sequence", DEMO_SEQUENCE, "--stop", "3", "--no-progress"]) == 0
+    assert (tmp_path / "runs" / f"kitti_{DEMO_SEQUENCE}" / "metrics.json").is_file()
+    assert not (tmp_path / "runs" / "demo").exists()
+
+
+# --- every result is written even when a metric cannot be computed -----------------------------------------
+@pytest.mark.parametrize("how", ["one frame", "all modules lesioned"])
+def test_results_are_written_when_a_metric_is_unavailable(demo, tmp_path, how):
+    n = 1 if how == "one frame" else 12
+    config = {**QUIET}
+    if how != "one frame":
+        config["lesions"] = {"ventral": True, "intermediate": True, "dorsal": True}
+    Pipeline(Frames(demo, n), config_from_dict(config)).run(tmp_path / "out")
+    out = tmp_path / "out"
+    for name in ("vo", "online", "corrected", "neural"):
+        assert (out / f"trajectory_{name}.kitti.txt").read_text().count("\n") == n
+    assert (out / "map.bin").stat().st_size > 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["frames"] == n
+    if how == "one frame":
+        assert "single frame" in metrics["unavailable"]["errors"]
+    else:
+        assert metrics["lesioned"] == [True, True, True]
+        assert metrics["errors"]["vo"]["ate_2d_m"] >= 0.0  # scored, though the networks' estimate is not
+        assert "same point" in metrics["errors"]["neural"]["unavailable"]
+
+
+# --- signals --------------------------------------------------------------------------------------------
+@pytest.mark.parametrize("signame, code", [("SIGTERM", 143), ("SIGHUP", 129)])
+def test_sigterm_and_sighup_keep_the_frames_processed(demo, tmp_path, monkeypatch, signame, code):
+    def kill_at_frame_8(i):
+        if i == 8:
+            os.kill(os.getpid(), getattr(signal, signame))
+
+    monkeypatch.setattr("hippo_nav.pipeline.pipeline.open_input", lambda *a, **k: Frames(demo, 30, on_load=kill_at_frame_8))
+    out = tmp_path / "out"
+    assert main(["run", "--no-progress", "--no-figures", "--out", str(out)]) == code
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["interrupted"] and metrics["interrupted_by"] == signame and metrics["frames"] == 8
+    assert (out / "trajectory_corrected.kitti.txt").read_text().count("\n") == 8
+    assert signal.getsignal(getattr(signal, signame)) is signal.SIG_DFL  # the handler is put back
+
+
+def test_ctrl_c_before_the_first_frame_exits_130(demo, tmp_path, monkeypatch, capsys):
+    def interrupt(i):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr("hippo_nav.pipeline.pipeline.open_input", lambda *a, **k: Frames(demo, 30, on_load=interrupt))
+    assert main(["run", "--no-progress", "--out", str(tmp_path / "out")]) == 130
+
+
+# --- data problems are flagged, not hidden ---------------------------------------------------------------
+def test_a_time_gap_does_not_become_motion(demo, tmp_path):
+    # 100 s pass between frames 10 and 11, and frame 11 has no texture: the VO's constant-velocity prior
+    # must not carry the car on for 100 s (it did: 1 157 m).
+    times = demo.timestamps_s[:20].copy()
+    times[11:] += 100.0
+
+    class BlankAt11(Frames):
+        def __getitem__(self, i):
+            frame = super().__getitem__(i)
+            if i == 11:
+                blank = np.full_like(frame.left, 128)
+                return type(frame)(frame.index, frame.timestamp_s, blank, blank)
+            return frame
+
+    result = Pipeline(BlankAt11(demo, 20, times), config_from_dict(QUIET)).run(tmp_path / "out")
+    vo = result.vo_world_from_camera
+    assert np.linalg.norm(vo[11, :3, 3] - vo[10, :3, 3]) < 1.0
+    assert result.record.frames[11].data_flags.startswith("time_gap:100")
+    assert result.metrics["data"]["time_gaps"] == 1
+    assert "time_gap" in (tmp_path / "out" / "frames.csv").read_text()
+
+
+def test_a_hole_in_the_images_is_counted_and_flagged(demo, tmp_path):
+    root = tmp_path / "kitti"
+    sequence = root / "sequences" / DEMO_SEQUENCE
+    for folder in ("image_0", "image_1"):
+        (sequence / folder).mkdir(parents=True)
+        for i in range(12):
+            if not (folder == "image_1" and i == 6):
+                source = demo.root / "sequences" / DEMO_SEQUENCE / folder / f"{i:06d}.png"
+                (sequence / folder / source.name).write_bytes(source.read_bytes())
+    for name in ("calib.txt", "times.txt"):
+        (sequence / name).write_bytes((demo.root / "sequences" / DEMO_SEQUENCE / name).read_bytes())
+    result = Pipeline(KittiOdometry(root, DEMO_SEQUENCE), config_from_dict(QUIET)).run(tmp_path / "out")
+    assert result.metrics["data"]["missing_frames"] == 1
+    assert result.metrics["data"]["frames_after_skipped_frames"] == 1
+    assert [f.data_flags for f in result.record.frames].count("skipped_frames:1") == 1
+
+
+def test_textureless_sequences_are_reported(demo, tmp_path, caplog):
+    class Blank(Frames):
+        def __getitem__(self, i):
+            frame = super().__getitem__(i)
+            blank = np.full_like(frame.left, 90)
+            return type(frame)(frame.index, frame.timestamp_s, blank, blank)
+
+    result = Pipeline(Blank(demo, 12), config_from_dict(QUIET)).run(None)
+    assert result.metrics["data"]["low_texture_frames"] >= 10
+    assert any("too little usable texture" in r.message for r in caplog.records)
+
+
+def test_a_corrupt_demo_cache_file_is_rendered_again(tmp_path):
+    root = demo_sequence(tmp_path / "cache")
+    victim = root / "sequences" / DEMO_SEQUENCE / "image_0" / "000007.png"
+    victim.write_bytes(victim.read_bytes()[:100])  # truncated
+    assert cv2.imread(str(victim)) is None
+    demo_sequence(tmp_path / "cache")
+    assert cv2.imread(str(victim)) is not None
+
+
+# --- messages --------------------------------------------------------------------------------------------
+def test_config_errors_name_the_field_and_value(tmp_path, capsys):
+    cfg = tmp_path / "c.json"
+    for config, phrase in (
+        ('{"engine": {"tau_s": NaN}}', "engine.tau_s: Input should be a finite number (got nan)"),
+        ('{"output": {"rate_map_bin_m": 1e-6}}', "output.rate_map_bin_m: Input should be greater than or equal to 0.1"),
+        ('{"output": {"state_frames": [500]}}', "output.state_frames: [500] lie outside this run of 5 frames"),
+        ('{"vo": {"max_features": -3}}', "vo: max_features: Input should be greater than or equal to 8"),
+    ):
+        cfg.write_text(config)
+        assert main(["run", "--no-progress", "--stop", "5", "--config", str(cfg), "--out", str(tmp_path / "x")]) == 2
+        assert phrase in _one_line_error(capsys)
+    one_module = config_from_dict({"engine": {"grid": {"dorsal": {"nu_max": 0.1}}}})
+    assert [g.nu_max for g in one_module.engine.grid][2] == 0.1
+    assert one_module.engine.grid[0].nu_max == EngineConfig().grid[0].nu_max
+
+
+def test_one_seed_reaches_every_random_choice(demo):
+    def codes(seed: int) -> list:
+        config = config_from_dict({"seed": seed, **QUIET})
+        return Pipeline(Frames(demo, 8), config).run(None).record.column("place_code_rad")
+
+    assert codes(3) == codes(3)
+    assert codes(3) != codes(4)
+
+
+def test_engine_arguments_out_of_range_are_named():
+    sm = SpatialMemory()
+    patterns = sm.view_patterns()
+    with pytest.raises(HippoNavError, match="view strength"):
+        sm.step(0.0, 1.0, 0.1, ViewPatterns(patterns.hd_profile, patterns.grid_layer2, strength=-1.0))
+    with pytest.raises(HippoNavError, match="settle_s"):
+        SpatialMemory(EngineConfig(settle_s=-0.1))
+    state = sm.state()
+    state["place"] = -state["place"] - 1.0
+    before = sm.place_activity()
+    with pytest.raises(HippoNavError, match="place activity.*negative"):
+        sm.set_state(state)
+    np.testing.assert_array_equal(sm.place_activity(), before)
+    with pytest.raises(HippoNavError, match="grid module index -1"):
+        sm.grid_layer2(-1)
+
+
+def test_the_vo_prior_does_not_extrapolate_over_a_gap(demo):
+    vo = StereoOdometry(demo.calibration)
+    frames = [demo[i] for i in range(4)]
+    for frame in frames[:3]:
+        vo.process(frame)
+    blank = np.full_like(frames[3].left, 128)
+    late = type(frames[3])(frames[3].index, frames[2].timestamp_s + 100.0, blank, blank)
+    step = vo.process(late)
+    assert step.status == "low_texture" and np.linalg.norm(step.camera_prev_from_camera_cur[:3, 3]) < 1e-9
