@@ -1,5 +1,4 @@
-"""The paper's 1-D theory (docs/spec.md §6, docs/theory.md): fusion, lesions, the Fourier baseline,
-alignment."""
+"""The paper's 1-D theory (docs/spec.md §6, docs/theory.md): fusion, lesions, Fourier baseline, alignment."""
 
 from __future__ import annotations
 

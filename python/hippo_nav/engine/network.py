@@ -83,8 +83,7 @@ class SpatialReadout:
 
 @dataclass
 class ViewPatterns:
-    """What a view cell stores and injects back (docs/spec.md §7): HD θ-profile and each module's
-    layer-II pattern."""
+    """What a view cell stores and injects back (docs/spec.md §7): HD θ-profile, layer-II patterns."""
 
     hd_profile: np.ndarray
     grid_layer2: list[np.ndarray | None]
