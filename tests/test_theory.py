@@ -1,4 +1,4 @@
-"""The paper's 1-D theory (SPEC §6, docs/theory.md): fusion, lesions, the Fourier baseline, alignment."""
+"""The paper's 1-D theory (docs/spec.md §6, docs/theory.md): fusion, lesions, Fourier baseline, alignment."""
 
 from __future__ import annotations
 
@@ -164,7 +164,7 @@ def test_predicted_lesion_order_covers_every_subset_and_is_monotone():
     sigmas = [1.16, 5.42, 21.39]  # the paper's table, x axis: modules k = 4, 2, 1
     order = predicted_lesion_order(sigmas)
     assert set(order) == {s for n in (1, 2, 3) for s in itertools.combinations(range(3), n)}
-    assert order[(0, 1, 2)] == pytest.approx(1.133, abs=1e-3)  # SPEC §4 check value
+    assert order[(0, 1, 2)] == pytest.approx(1.133, abs=1e-3)  # docs/spec.md §4 check value
     assert order[(1,)] == pytest.approx(5.42, rel=1e-12)
     for small, large in itertools.permutations(order, 2):
         if set(small) < set(large):

@@ -1,4 +1,4 @@
-"""The experience map (cognitive map, SPEC §8) and its two correctors, from Python.
+"""The experience map (cognitive map, docs/spec.md §8) and its two correctors, from Python.
 
 The engine is Rust (`crates/hippo_map`); this module adds typed parameters and small conveniences.
 

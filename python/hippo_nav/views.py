@@ -1,4 +1,4 @@
-"""Local view cells (SPEC §7): templates from images (OpenCV) and matching in Rust (`hippo_views`).
+"""Local view cells (docs/spec.md §7): templates from images (OpenCV), matching in Rust (`hippo_views`).
 
 A template is the left image cropped to the rows `crop_rows_frac` (dropping sky and bonnet), shrunk to
 `height_px × width_px` with area averaging (`cv2.INTER_AREA`), then patch-normalised: each pixel minus the

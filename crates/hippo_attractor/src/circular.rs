@@ -1,4 +1,5 @@
-//! Angles on the circle. `wrap(d) = mod(d + π, 2π) − π` is the signed distance used throughout the spec.
+//! Angles on the circle. `wrap(d) = mod(d + π, 2π) − π` is the signed distance used throughout the
+//! model (docs/spec.md, Notation and units).
 use std::f64::consts::{PI, TAU};
 
 /// Signed circular difference in `[−π, π)`.

@@ -1,4 +1,4 @@
-//! Bump decoding on a 2-D neural torus (SPEC §4).
+//! Bump decoding on a 2-D neural torus (docs/spec.md §4).
 //!
 //! Bumps are found by wrap-aware clustering, never by assuming a square lattice (the k = 2 and k = 4
 //! patterns sit in offset rows): units above `threshold_frac · max` form 4-connected components on the

@@ -1,4 +1,4 @@
-//! Bayesian (precision-weighted) fusion of the grid modules' bumps (SPEC §4).
+//! Bayesian (precision-weighted) fusion of the grid modules' bumps (docs/spec.md §4).
 //!
 //! Per axis, with the coarsest module's bump as reference `μ_ref`:
 //! `1/σ_f² = Σ_m 1/σ_m²`, `μ_f = wrap(μ_ref + σ_f² Σ_m wrap(μ_m − μ_ref)/σ_m²)`.
@@ -109,7 +109,8 @@ mod tests {
         }
     }
 
-    /// The paper's table (bold bumps of the 16-, 4- and 1-bump modules) and the spec's check value.
+    /// The paper's table (bold bumps of the 16-, 4- and 1-bump modules) and its fused check value
+    /// (docs/spec.md §4).
     #[test]
     fn reproduces_paper_table_check_value() {
         let coarse = bump(1.77, 0.34, 21.39, 20.48);

@@ -1,5 +1,5 @@
-//! Grid-by-velocity torus attractor (SPEC §3): units on `(θx, θy) ∈ [0, 2π)²` (N×N) × `(νx, νy) ∈ [−L, L]²`
-//! (M×M). Module `k` has `k` bumps per axis (`k²` on the torus).
+//! Grid-by-velocity torus attractor (docs/spec.md §3): units on `(θx, θy) ∈ [0, 2π)²` (N×N)
+//! × `(νx, νy) ∈ [−L, L]²` (M×M). Module `k` has `k` bumps per axis (`k²` on the torus).
 //!
 //! Weights `J = J0 + Jk cos(k·|wrap(θ − θ' − ν')|) · cos(λ|ν − ν'|)` with `h = (1/(N²M²)) Σ J m`.
 //! The `Jk` term is translation invariant in θ with a shift that depends only on the presynaptic velocity

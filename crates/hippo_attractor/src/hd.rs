@@ -1,4 +1,5 @@
-//! Head-direction-by-velocity ring attractor (SPEC §2): units on `θ_i = 2πi/Nθ` × `ν_j ∈ [−L_r, L_r]`.
+//! Head-direction-by-velocity ring attractor (docs/spec.md §2): units on `θ_i = 2πi/Nθ`
+//! × `ν_j ∈ [−L_r, L_r]`.
 //!
 //! Weights `J(θ,ν | θ',ν') = J0 + J1 cos(θ − θ' − ν') cos(λ(ν − ν'))`, recurrent input
 //! `h = (1/(Nθ Nν)) Σ J m`. The `J1` term is a single harmonic in θ, so with
@@ -39,7 +40,8 @@ pub struct HdParams {
 impl Default for HdParams {
     fn default() -> Self {
         // The exact-leak integrator maps ω to u = arctan(τ_eff ω) with τ_eff ≈ 2.7τ at the default step, so
-        // the spec's L_r ≈ 0.05 (for τ) becomes 0.1: turn rates up to ~3.6 rad/s (tight corners at speed).
+        // the L_r ≈ 0.05 that suits the paper's τ becomes 0.1: turn rates up to ~3.6 rad/s (tight
+        // corners at speed; docs/spec.md §2).
         let nu_max = 0.1;
         Self {
             n_theta: 128,

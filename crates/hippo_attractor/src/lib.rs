@@ -1,11 +1,12 @@
-//! The neural engine of hippo_nav: continuous attractor networks of the entorhinal–hippocampal model of
-//! Zeng, Li & Si ("Bayesian Integration of Multi-resolutional Grid Codes for Spatial Cognition"), as fixed
-//! by `SPEC.md`.
+//! The neural engine of hippo_nav: continuous attractor networks of the entorhinal–hippocampal
+//! model of Zeng, Li & Si ("Bayesian Integration of Multi-resolutional Grid Codes for Spatial
+//! Cognition"), as stated, with its departures from the paper, in `docs/spec.md`.
 //!
-//! - [`hd`]: head-direction-by-velocity ring (SPEC §2), exact rank-2 recurrent input.
-//! - [`grid`]: grid-by-velocity tori with k = 1, 2, 4 bumps per axis (SPEC §3), per-slice FFTs.
-//! - [`place`]: CA3 place torus (SPEC §5).
-//! - [`decode`], [`fusion`]: bump decoding and Bayesian fusion (SPEC §4).
+//! - [`hd`]: head-direction-by-velocity ring (docs/spec.md §2), exact rank-2 recurrent input.
+//! - [`grid`]: grid-by-velocity tori with k = 1, 2, 4 bumps per axis (docs/spec.md §3),
+//!   per-slice FFTs.
+//! - [`place`]: CA3 place torus (docs/spec.md §5).
+//! - [`decode`], [`fusion`]: bump decoding and Bayesian fusion (docs/spec.md §4).
 //! - [`spatial_memory`]: the whole network stepped per camera frame, with lesions and view injection.
 //! - [`dynamics`]: the integrator (implicit global inhibition, exact leak).
 //! - [`reference`]: dense-weight reference implementations, for tests and benchmarks only.

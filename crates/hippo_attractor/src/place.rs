@@ -1,7 +1,7 @@
-//! CA3 place-cell torus (SPEC §5): N×N units, `J(θ | θ') = J0 + J1 cos(|wrap(θ − θ')|)`,
+//! CA3 place-cell torus (docs/spec.md §5): N×N units, `J(θ | θ') = J0 + J1 cos(|wrap(θ − θ')|)`,
 //! `τ dm/dt = −m + [h + I_grid]_+` with `h = (1/N²) Σ J m` (an exact FFT convolution).
 //!
-//! The input is the Gaussian place input of the fused grid estimate (SPEC §4):
+//! The input is the Gaussian place input of the fused grid estimate (docs/spec.md §4):
 //! `I_grid(θ) = A / sqrt(2π σx σy) · exp(−wrap(θx − μx)²/(2σx²) − wrap(θy − μy)²/(2σy²))`.
 use crate::check;
 use crate::circular::wrap;

@@ -1,5 +1,6 @@
-//! The whole spatial-memory network (SPEC §1): HD ring → three grid modules → Bayesian fusion → CA3 place
-//! torus, stepped per camera frame from (yaw rate, forward speed, dt, optional view injection).
+//! The whole spatial-memory network (docs/spec.md §1): HD ring → three grid modules → Bayesian
+//! fusion → CA3 place torus, stepped per camera frame from (yaw rate, forward speed, dt, optional
+//! view injection).
 //!
 //! A frame of `dt` is split into `ceil(dt / max_substep_s)` equal sub-steps. In each: the ring integrates
 //! the yaw rate; its decoded heading ψ turns the speed into a map-frame velocity `V = v (cos ψ, sin ψ)`;
@@ -101,7 +102,7 @@ impl SpatialMemoryParams {
     }
 }
 
-/// Patterns stored by a view cell and injected when it is recognised (SPEC §7).
+/// Patterns stored by a view cell and injected when it is recognised (docs/spec.md §7).
 #[derive(Clone, Debug)]
 pub struct ViewInjection<T> {
     /// HD θ-profile (Nθ), replicated along ν.

@@ -19,8 +19,9 @@ fn place_width_rad(sm: &mut SpatialMemory<f32>, lesioned: [bool; 3]) -> (f64, f6
     )
 }
 
-/// SPEC §4/§6: every lesion widens the place field; losing the dorsal (finest, smallest σ) module widens it
-/// more than losing the ventral (coarsest) one: σ_yellow > σ_green > σ_red.
+/// docs/spec.md §4 and §6: every lesion widens the place field; losing the dorsal (finest,
+/// smallest σ) module widens it more than losing the ventral (coarsest) one:
+/// σ_yellow > σ_green > σ_red.
 #[test]
 fn lesions_widen_the_place_bump_in_the_order_the_theory_predicts() {
     let mut sm = SpatialMemory::<f32>::new(SpatialMemoryParams::default()).unwrap();

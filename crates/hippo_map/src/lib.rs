@@ -1,4 +1,4 @@
-//! Experience map (SPEC §8): vertices, odometric links, loop closure and map correction.
+//! Experience map (docs/spec.md §8): vertices, odometric links, loop closure and map correction.
 //!
 //! - [`se2`]: planar rigid transforms and angle wrapping.
 //! - [`graph`]: the pose graph, its g2o `EdgeSE2` cost `χ² = Σ eᵀΩe`, dead reckoning and ATE.

@@ -3,8 +3,9 @@
 //! A [`Pose2`] `(x, y, yaw)` is the transform `a_from_b`: it maps a point `p_b` in frame `b` to
 //! `p_a = R(yaw)·p_b + (x, y)`. Composition `a_from_c = a_from_b ⊕ b_from_c` is [`Pose2::compose`];
 //! the relative transform of `j` seen from `i` is `i_from_j = world_from_i⁻¹ ⊕ world_from_j`
-//! ([`Pose2::between`]). Yaw is kept in `[-π, π)` by [`wrap_angle`], the SPEC's `wrap(d) = mod(d+π, 2π) − π`.
-//! Odometric steps use the robot convention of the SPEC (§9): `x` forward, `y` left, yaw counter-clockwise.
+//! ([`Pose2::between`]). Yaw is kept in `[-π, π)` by [`wrap_angle`], the model's
+//! `wrap(d) = mod(d+π, 2π) − π`. Odometric steps use the planar convention of docs/spec.md §9:
+//! `x` forward, `y` left, yaw counter-clockwise.
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 

@@ -1,6 +1,7 @@
-//! The least-squares corrector against the standard 2-D pose-graph benchmarks (../shared/data/posegraphs):
-//! from a chordal initialisation (not the file's own poses) it must reach the reference χ² within 0.1 %.
-//! The relaxation's χ² after its passes is printed beside it. Skips when the data is absent.
+//! The least-squares corrector against the standard 2-D pose-graph benchmarks (`posegraphs/` in the
+//! test data folder, see `common::shared_data`): from a chordal initialisation (not the file's own
+//! poses) it must reach the reference χ² within 0.1 %. The relaxation's χ² after its passes is
+//! printed beside it. Skips when the data is absent.
 mod common;
 
 use hippo_map::{optimize, read_g2o, relax, Initialization, RelaxationParams, SolverParams};

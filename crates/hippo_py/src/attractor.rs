@@ -366,7 +366,7 @@ fn find_bumps(
         .collect())
 }
 
-/// Bayesian fusion of one or more modules' bumps, coarsest module first (SPEC §4).
+/// Bayesian fusion of one or more modules' bumps, coarsest module first (docs/spec.md §4).
 /// `modules`: per module a list of (mean_rad, std_rad) pairs (an empty list = lesioned).
 /// Returns (mean_rad, std_rad, chosen bumps).
 #[pyfunction]

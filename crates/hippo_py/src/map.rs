@@ -412,7 +412,7 @@ impl PyPoseGraph {
     }
 }
 
-/// The experience map (SPEC §8), driven once per camera frame.
+/// The experience map (docs/spec.md §8), driven once per camera frame.
 #[pyclass(name = "ExperienceMap", module = "hippo_nav._core")]
 pub struct PyExperienceMap {
     map: ExperienceMap,

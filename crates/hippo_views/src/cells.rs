@@ -325,7 +325,7 @@ impl ViewCells {
             .collect())
     }
 
-    /// Match a view and create a cell when it is novel (SPEC §7).
+    /// Match a view and create a cell when it is novel (docs/spec.md §7).
     pub fn observe(&mut self, template: &[f32]) -> Result<ViewObservation, ViewError> {
         self.observe_in(template, None)
     }

@@ -1,4 +1,4 @@
-//! Local view cells (SPEC §7): template comparison with a horizontal shift search.
+//! Local view cells (docs/spec.md §7): template comparison with a horizontal shift search.
 //!
 //! A template is a small, patch-normalised, row-major `height × width` image (made by the Python side with
 //! OpenCV). [`ViewCells::observe`] compares it with every stored template using the normalised mean

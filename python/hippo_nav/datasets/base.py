@@ -1,7 +1,8 @@
 """The stereo dataset protocol every loader implements, and the calibration/frame records it yields.
 
-Conventions (SPEC §9): images are rectified 8-bit gray; camera 0 is the left camera, camera 1 the right
-one, displaced by `baseline_m` along camera 0's +x axis. Camera frame: x right, y down, z forward.
+Conventions (docs/spec.md §9): images are rectified 8-bit gray; camera 0 is the left camera, camera 1
+the right one, displaced by `baseline_m` along camera 0's +x axis. Camera frame: x right, y down,
+z forward.
 `P_i = K [I | t_i]` projects a point in camera-0 coordinates into camera i's image, so for a rectified
 pair `P1[0, 3] = −fx · baseline_m`. Poses are `world_from_camera` (camera 0) 4×4 matrices.
 """

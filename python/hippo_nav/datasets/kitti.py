@@ -1,4 +1,4 @@
-"""KITTI odometry loader (the layout of SPEC §9).
+"""KITTI odometry loader (the layout of docs/spec.md §9).
 
 ```
 <root>/sequences/XX/image_0/NNNNNN.png   left, 8-bit gray, rectified

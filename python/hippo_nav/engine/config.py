@@ -49,7 +49,7 @@ class _Section(BaseModel):
 
 
 class HdConfig(_Section):
-    """Head-direction-by-velocity ring (SPEC §2)."""
+    """Head-direction-by-velocity ring (docs/spec.md §2)."""
 
     n_theta: int = Field(description="units around the ring (Nθ)")
     n_nu: int = Field(description="units along the angular-velocity axis (Nν)")
@@ -64,7 +64,7 @@ class HdConfig(_Section):
 
 
 class GridConfig(_Section):
-    """One grid-by-velocity module (SPEC §3)."""
+    """One grid-by-velocity module (docs/spec.md §3)."""
 
     k: int = Field(description="bumps per torus axis (1, 2, 4)")
     n_theta: int = Field(description="units per torus axis (N)")
@@ -80,7 +80,7 @@ class GridConfig(_Section):
 
 
 class PlaceConfig(_Section):
-    """CA3 place torus (SPEC §5)."""
+    """CA3 place torus (docs/spec.md §5)."""
 
     n_theta: int
     j0: float

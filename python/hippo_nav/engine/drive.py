@@ -1,9 +1,10 @@
 """Drive the spatial memory along a trajectory's planar odometry (no camera): the network's own path
 integration of a known motion, as in the paper's path-integration experiments.
 
-Planar convention (SPEC §9): the map's (forward, left) axes are KITTI's (z, −x); yaw turns about −y
-(counter-clockwise seen from above is positive). The engine's frame has x along the initial heading and
-y to its left, so its positions compare directly with the trajectory expressed in its first pose.
+Planar convention (docs/spec.md §9): the map's (forward, left) axes are KITTI's (z, −x); yaw turns
+about −y (counter-clockwise seen from above is positive). The engine's frame has x along the initial
+heading and y to its left, so its positions compare directly with the trajectory expressed in its first
+pose.
 """
 
 from __future__ import annotations

@@ -83,7 +83,7 @@ class SpatialReadout:
 
 @dataclass
 class ViewPatterns:
-    """What a view cell stores and injects back (SPEC §7): HD θ-profile and each module's layer-II pattern."""
+    """What a view cell stores and injects back (docs/spec.md §7): HD θ-profile, layer-II patterns."""
 
     hd_profile: np.ndarray
     grid_layer2: list[np.ndarray | None]
@@ -146,7 +146,7 @@ class SpatialMemory:
         return self._net.place_input()
 
     def view_patterns(self) -> ViewPatterns:
-        """The patterns a new view cell stores (SPEC §7)."""
+        """The patterns a new view cell stores (docs/spec.md §7)."""
         return ViewPatterns(
             hd_profile=self.hd_profile(),
             grid_layer2=[self.grid_layer2(i) for i in range(3)],

@@ -14,7 +14,7 @@ Sections:
 - `vo`: keyword parameters of the stereo VO (`hippo_nav.vo`); empty = its own defaults.
 - `views`: view-cell parameters (`hippo_nav.views`); empty = their own defaults.
 - `view_search`: which stored views a frame is compared with (`ViewSearchConfig`).
-- `injection`: how familiar views pull the network back (SPEC §7, see `InjectionConfig`).
+- `injection`: how familiar views pull the network back (docs/spec.md §7, see `InjectionConfig`).
 - `map`: experience-map creation, loop-closure mode and gates, online correction (`hippo_nav.map.MapParams`).
 - `closure`: geometric loop closure: stereo keyframes and PnP verification (`hippo_nav.closure.ClosureConfig`).
 - `correction`: the final correction run after the last frame (`CorrectionConfig`).
@@ -49,7 +49,7 @@ class LesionConfig(_Section):
 
 
 class InjectionConfig(_Section):
-    """Familiar-view injection (SPEC §7).
+    """Familiar-view injection (docs/spec.md §7).
 
     When a new view cell is created, the network's `view_patterns()` (HD θ-profile, the three layer-II
     patterns) are stored with it. When a familiar cell is matched, its stored patterns are injected as

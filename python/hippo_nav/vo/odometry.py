@@ -1,6 +1,6 @@
 """Feature-based stereo visual odometry with OpenCV (the paper used direct sparse stereo odometry).
 
-Per stereo frame k (rectified pair, camera x right, y down, z forward; SPEC §9):
+Per stereo frame k (rectified pair, camera x right, y down, z forward; docs/spec.md §9):
 
 1. Features: Shi–Tomasi corners in the left image, spread by a minimum distance.
 2. Stereo: each corner is tracked into the right image with pyramidal KLT, started at a typical
