@@ -14,7 +14,7 @@ PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 def snippets() -> list:
     found = []
     for page in PAGES:
-        for k, match in enumerate(re.finditer(r"```python\n(.*?)```", page.read_text(), re.S)):
+        for k, match in enumerate(re.finditer(r"```python\n(.*?)```", page.read_text(), re.DOTALL)):
             found.append(pytest.param(match.group(1), id=f"{page.name}-{k}"))
     return found
 
