@@ -26,6 +26,7 @@ from hippo_nav.synthetic import (
     render_cached,
     scale_trajectory,
 )
+from hippo_nav.vo import VoParams
 
 # A real KITTI loop shape: sequence 05, frames 700–1600 (a 560 m block driven once, then ~50 m of it
 # again), every 4th frame, scaled by 0.35 so that a 10 Hz rendering moves ≤ 1.6 m and turns ≤ 2.1 rad/s
@@ -151,7 +152,7 @@ def test_vo_failures_and_absurd_motion_are_flagged_not_fatal(demo):
     from hippo_nav.pipeline.frontend import make_odometry
 
     data = _Subset(demo, 20)
-    odometry = _FailingOdometry(make_odometry(data.calibration, {}), fail={6, 7}, absurd={12})
+    odometry = _FailingOdometry(make_odometry(data.calibration, VoParams()), fail={6, 7}, absurd={12})
     result = Pipeline(data, odometry=odometry).run(None)
     record = result.record
     assert len(record) == 20
@@ -198,7 +199,7 @@ def test_synthetic_kitti_loop_is_closed_and_correction_beats_the_vo(kitti_loop, 
     assert len(list(tmp_path.glob("neural_state_*.png"))) >= 2
 
     # With a real VO's drift the closure must pull the map back: the corrected map beats the VO.
-    odometry = _DriftingOdometry(make_odometry(kitti_loop.calibration, {}))
+    odometry = _DriftingOdometry(make_odometry(kitti_loop.calibration, VoParams()))
     config = config_from_dict({"output": {"figures": False}})
     drifted = Pipeline(kitti_loop, config, odometry=odometry).run(None)
     closures = np.array(drifted.metrics["loop_closure_frames"])

@@ -206,7 +206,7 @@ def test_config_errors_name_the_field_and_value(tmp_path, capsys):
         ('{"engine": {"tau_s": NaN}}', "engine.tau_s: Input should be a finite number (got nan)"),
         ('{"output": {"rate_map_bin_m": 1e-6}}', "output.rate_map_bin_m: Input should be greater than or equal to 0.1"),
         ('{"output": {"state_frames": [500]}}', "output.state_frames: [500] lie outside this run of 5 frames"),
-        ('{"vo": {"max_features": -3}}', "vo: max_features: Input should be greater than or equal to 8"),
+        ('{"vo": {"max_features": -3}}', "vo.max_features: Input should be greater than or equal to 8 (got -3)"),
     ):
         cfg.write_text(config)
         assert main(["run", "--no-progress", "--stop", "5", "--config", str(cfg), "--out", str(tmp_path / "x")]) == 2

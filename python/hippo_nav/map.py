@@ -18,7 +18,6 @@ The engine is Rust (`crates/hippo_map`); this module adds typed parameters and s
 
 from __future__ import annotations
 
-import json
 from enum import Enum
 from pathlib import Path
 from typing import Any
@@ -26,6 +25,7 @@ from typing import Any
 from pydantic import BaseModel, ConfigDict, Field
 
 from hippo_nav._core import ExperienceMap, MapFrameOutcome, PoseGraph
+from hippo_nav._defaults import rust_default
 
 __all__ = [
     "AmbiguityPolicy",
@@ -39,8 +39,6 @@ __all__ = [
     "read_g2o",
 ]
 
-# One source of defaults: the Rust `MapParams::default()`.
-_RUST_DEFAULTS = json.loads(ExperienceMap.default_params_json())
 
 
 class AmbiguityPolicy(str, Enum):
@@ -67,7 +65,8 @@ class OnlineCorrection(str, Enum):
 
 
 def _default(name: str) -> Any:
-    return _RUST_DEFAULTS[name]
+    # One source of defaults: the Rust `MapParams::default()`.
+    return rust_default("map", name)
 
 
 class MapParams(BaseModel):

@@ -19,7 +19,6 @@ since the cell was stored, by `shift_px · field_of_view_rad / width_px`.
 
 from __future__ import annotations
 
-import json
 import math
 from typing import Any
 
@@ -30,11 +29,13 @@ from pydantic import BaseModel, ConfigDict
 
 from hippo_nav import _core
 from hippo_nav._core import HippoNavError, ViewObservation
+from hippo_nav._defaults import rust_default
 
 __all__ = ["ViewCellConfig", "ViewCells", "ViewObservation", "field_of_view_rad"]
 
-# The Rust defaults are the single source; this model only names and types them.
-_DEFAULTS: dict[str, Any] = json.loads(_core.default_view_config_json())
+def _default(name: str) -> Any:
+    # The Rust defaults are the single source; this model only names and types them.
+    return rust_default("views", name)
 
 # Noise floor of the patch standard deviation, in 8-bit grey levels.
 _NOISE_FLOOR_GREY = 5.0
@@ -45,15 +46,15 @@ class ViewCellConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    width_px: int = _DEFAULTS["width_px"]
-    height_px: int = _DEFAULTS["height_px"]
-    crop_rows_frac: tuple[float, float] = tuple(_DEFAULTS["crop_rows_frac"])  # type: ignore[assignment]
-    patch_size_px: int = _DEFAULTS["patch_size_px"]
-    max_shift_px: int = _DEFAULTS["max_shift_px"]
-    novelty_threshold: float = _DEFAULTS["novelty_threshold"]
-    field_of_view_rad: float = _DEFAULTS["field_of_view_rad"]
-    min_texture: float = _DEFAULTS["min_texture"]
-    coarse_rows: int = _DEFAULTS["coarse_rows"]
+    width_px: int = _default("width_px")
+    height_px: int = _default("height_px")
+    crop_rows_frac: tuple[float, float] = (_default("crop_rows_frac")[0], _default("crop_rows_frac")[1])
+    patch_size_px: int = _default("patch_size_px")
+    max_shift_px: int = _default("max_shift_px")
+    novelty_threshold: float = _default("novelty_threshold")
+    field_of_view_rad: float = _default("field_of_view_rad")
+    min_texture: float = _default("min_texture")
+    coarse_rows: int = _default("coarse_rows")
 
 
 def field_of_view_rad(fx_px: float, image_width_px: int) -> float:

@@ -14,6 +14,7 @@ to small images (a 96-row render keeps most of its rows).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -92,7 +93,7 @@ class KeyframeExtractor:
         # ORB's descriptor patch and border: 31 px on KITTI-size images, smaller on small renders so that
         # most rows stay usable (a 96-row image would keep only 34 rows at 31 px).
         patch = int(np.clip(height // 6, 15, 31)) | 1
-        self._orb = cv2.ORB_create(
+        self._orb = cv2.ORB.create(
             nfeatures=self.config.orb_features,
             scaleFactor=1.2,
             nlevels=4,
@@ -101,7 +102,7 @@ class KeyframeExtractor:
             fastThreshold=10,
         )
         window = int(np.clip(width // 25, 11, 15)) | 1
-        self._klt = {
+        self._klt: dict[str, Any] = {
             "winSize": (window, window),
             "maxLevel": 3,
             "criteria": (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01),
@@ -112,8 +113,8 @@ class KeyframeExtractor:
         keypoints, descriptors = self._orb.detectAndCompute(left, None)
         if descriptors is None or len(keypoints) == 0:
             return _empty_keyframe()
-        pixels = np.float32([k.pt for k in keypoints])
-        response = np.float32([k.response for k in keypoints])
+        pixels = np.array([k.pt for k in keypoints], dtype=np.float32)
+        response = np.array([k.response for k in keypoints], dtype=np.float32)
         guess = pixels.copy()
         guess[:, 0] -= self.fx * self.baseline_m / cfg.stereo_guess_depth_m
         flags = cv2.OPTFLOW_USE_INITIAL_FLOW

@@ -78,8 +78,8 @@ class LoopMeasurer:
         good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < cfg.ratio_test * p[1].distance]
         if len(good) < cfg.min_inliers:
             return None, "too_few_matches"
-        object_points = np.float64([target.points_m[m.queryIdx] for m in good])
-        image_points = np.float64([current.pixels_px[m.trainIdx] for m in good])
+        object_points = target.points_m[[m.queryIdx for m in good]].astype(np.float64)
+        image_points = current.pixels_px[[m.trainIdx for m in good]].astype(np.float64)
         found, rvec, tvec, inliers = cv2.solvePnPRansac(
             object_points,
             image_points,

@@ -7,12 +7,12 @@ writes the fully resolved config, which every run puts into its results folder (
 run can be repeated from its own output.
 
 Sections:
-- `seed`: seeds OpenCV's RNG (RANSAC in the VO) so a run is deterministic for a given config and input.
+- `seed`: the one seed of a run (the networks' starting phases and heading code; OpenCV's RNG).
 - `engine`: the spatial-memory network (`hippo_nav.engine.EngineConfig`).
-- `lesions`: "MEC inactivation" of each grid module; applied on top of `engine` with
-  `EngineConfig.with_lesions` (a module lesioned in either place is lesioned).
-- `vo`: keyword parameters of the stereo VO (`hippo_nav.vo`); empty = its own defaults.
-- `views`: view-cell parameters (`hippo_nav.views`); empty = their own defaults.
+- `lesions`: "MEC inactivation" of each grid module — the one place lesions are set for a run (the
+  engine's `lesioned` list is derived from it).
+- `vo`: the stereo VO (`hippo_nav.vo.VoParams`).
+- `views`: the view cells (`hippo_nav.views.ViewCellConfig`; `field_of_view_rad` defaults to the camera's).
 - `view_search`: which stored views a frame is compared with (`ViewSearchConfig`).
 - `injection`: how familiar views pull the network back (docs/spec.md §7, see `InjectionConfig`).
 - `map`: experience-map creation, loop-closure mode and gates, online correction (`hippo_nav.map.MapParams`).
@@ -34,6 +34,8 @@ from hippo_nav._core import HippoNavError
 from hippo_nav.closure import ClosureConfig
 from hippo_nav.engine import EngineConfig
 from hippo_nav.map import MapParams
+from hippo_nav.views import ViewCellConfig
+from hippo_nav.vo import VoParams
 
 
 class _Section(BaseModel):
@@ -137,8 +139,8 @@ class PipelineConfig(_Section):
     seed: int = Field(0, ge=0, le=2**31 - 1, description="one seed for every random choice of the run")
     engine: EngineConfig = Field(default_factory=EngineConfig)
     lesions: LesionConfig = Field(default_factory=LesionConfig)
-    vo: dict[str, Any] = Field(default_factory=dict)
-    views: dict[str, Any] = Field(default_factory=dict)
+    vo: VoParams = Field(default_factory=VoParams)
+    views: ViewCellConfig = Field(default_factory=ViewCellConfig)
     view_search: ViewSearchConfig = Field(default_factory=ViewSearchConfig)
     injection: InjectionConfig = Field(default_factory=InjectionConfig)
     map: MapParams = Field(default_factory=MapParams)
@@ -148,23 +150,25 @@ class PipelineConfig(_Section):
     output: OutputConfig = Field(default_factory=OutputConfig)
 
     @model_validator(mode="after")
-    def _one_seed(self) -> PipelineConfig:
-        # One seed for the whole run: the VO's own seed field is set from it.
-        if "seed" in self.vo and self.vo["seed"] != self.seed:
+    def _one_source_per_setting(self) -> PipelineConfig:
+        # One seed for the whole run: the VO's own seed field follows it.
+        if "seed" in self.vo.model_fields_set and self.vo.seed != self.seed:
             raise ValueError(
-                f"vo.seed ({self.vo['seed']}) differs from seed ({self.seed}); set the seed once, at the top level"
+                f"vo.seed ({self.vo.seed}) differs from seed ({self.seed}); set the seed once, at the top level"
+            )
+        if self.vo.seed != self.seed:
+            object.__setattr__(self, "vo", self.vo.model_copy(update={"seed": self.seed}))
+        # Lesions live in one place: the `lesions` section (or --lesion).
+        if any(self.engine.lesioned):
+            raise ValueError(
+                "engine.lesioned: set lesions in the `lesions` section (or with --lesion), e.g. "
+                '{"lesions": {"dorsal": true}}'
             )
         return self
 
     def engine_config(self) -> EngineConfig:
-        """The engine config with the lesions of both `engine.lesioned` and `lesions` applied."""
-        lesioned = [
-            a or b
-            for a, b in zip(
-                self.engine.lesioned, (self.lesions.ventral, self.lesions.intermediate, self.lesions.dorsal)
-            )
-        ]
-        return self.engine.with_lesions(*lesioned)
+        """The engine config with the `lesions` section applied."""
+        return self.engine.with_lesions(self.lesions.ventral, self.lesions.intermediate, self.lesions.dorsal)
 
     def with_lesions(self, *names: str) -> PipelineConfig:
         """A copy with the named modules ("ventral", "intermediate", "dorsal") lesioned."""

@@ -50,7 +50,7 @@ from hippo_nav.geometry import lift_planar, planar_from_pose, se2_between, se2_c
 from hippo_nav.io import DatasetError
 from hippo_nav.map import ClosureMode, new_experience_map
 from hippo_nav.pipeline.config import PipelineConfig
-from hippo_nav.pipeline.frontend import make_odometry, make_view_cells
+from hippo_nav.pipeline.frontend import Odometry, ViewCellFrontEnd, make_odometry, make_view_cells
 from hippo_nav.pipeline.records import STAGES, FrameRecord, RunRecord, RunResult
 from hippo_nav.vo import planar_step
 
@@ -94,12 +94,10 @@ class Pipeline:
         initial_phase_rad = rng.uniform(0.0, 2 * np.pi, size=2)
         self.engine.reset(self.initial_heading_rad, (float(initial_phase_rad[0]), float(initial_phase_rad[1])))
         # Front-end parts can be given (e.g. another VO in a notebook); by default they come from the config.
-        self.odometry = (
-            odometry
-            if odometry is not None
-            else make_odometry(dataset.calibration, {**self.config.vo, "seed": self.config.seed})
+        self.odometry: Odometry = (
+            odometry if odometry is not None else make_odometry(dataset.calibration, self.config.vo)
         )
-        self.views = (
+        self.views: ViewCellFrontEnd = (
             view_cells if view_cells is not None else make_view_cells(self.config.views, dataset.calibration)
         )
         self.map = new_experience_map(self.config.map)

@@ -41,6 +41,7 @@ import resource
 import sys
 import tempfile
 import time
+from collections import Counter
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -241,9 +242,8 @@ def evaluate(pipeline: Pipeline, result: RunResult, correction: dict[str, Any], 
     n = len(record)
     export = result.map_export
     closures = record.column("loop_closure")
-    notes = [note for note in record.column("closure_note") if note]
-    statuses, counts = np.unique(record.column("vo_status"), return_counts=True)
-    note_kinds, note_counts = np.unique(notes, return_counts=True) if notes else ([], [])
+    attempts = Counter(note for note in record.column("closure_note") if note)
+    vo_statuses = Counter(record.column("vo_status"))
     low_texture = int(sum(s in ("low_texture", "failed") for s in record.column("vo_status")))
     if n >= 10 and low_texture > 0.5 * n:
         log.warning(
@@ -271,8 +271,8 @@ def evaluate(pipeline: Pipeline, result: RunResult, correction: dict[str, Any], 
         "keyframe_bytes": int(sum(k.nbytes for k in pipeline.keyframes.values())),
         "loop_closures": int(sum(c is not None for c in closures)),
         "loop_closure_frames": [record.frames[p].frame_index for p, c in enumerate(closures) if c is not None],
-        "closure_attempts": {str(k): int(c) for k, c in zip(note_kinds, note_counts)},
-        "vo_status_counts": {str(s): int(c) for s, c in zip(statuses, counts)},
+        "closure_attempts": dict(sorted(attempts.items())),
+        "vo_status_counts": dict(sorted(vo_statuses.items())),
         "motion_flags": int(sum(f != "ok" for f in record.column("motion_flag"))),
         "data": {
             "warnings": list(getattr(pipeline.dataset, "warnings", [])),
