@@ -39,7 +39,12 @@ class ClosureConfig(BaseModel):
     min_inlier_ratio: float = Field(
         0.25, ge=0.0, le=1.0, description="inliers / descriptor matches below this reject a closure"
     )
-    max_distance_m: float = Field(30.0, gt=0.0, description="a measured keyframe farther away is rejected")
+    max_distance_m: float = Field(
+        5.0,
+        gt=0.0,
+        description="a keyframe measured farther away is rejected: closures join places within 5 m (the "
+        "vertex spacing is ~3 m), and far keyframes are seen at grazing angles with few, weak matches",
+    )
     sigma_floor_xy_m: float = Field(0.05, gt=0.0, description="least position uncertainty of a loop link")
     sigma_floor_yaw_rad: float = Field(0.005, gt=0.0, description="least heading uncertainty of a loop link")
     covariance_inflation: float = Field(
