@@ -38,13 +38,15 @@ import logging
 import signal
 import threading
 import time
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from hippo_nav._core import HippoNavError
 from hippo_nav.closure import Keyframe, KeyframeExtractor, LoopMeasurer
+from hippo_nav.datasets.base import StereoFrame
 from hippo_nav.engine import CompactView, SpatialMemory, SpatialReadout, ViewPatterns
 from hippo_nav.geometry import lift_planar, planar_from_pose, se2_between, se2_compose
 from hippo_nav.io import DatasetError
@@ -59,7 +61,29 @@ log = logging.getLogger("hippo_nav.pipeline")
 NO_VIEW_ID = 2**63 - 1
 """View-cell id given to the map before any informative view has been seen."""
 
-__all__ = ["NO_VIEW_ID", "STAGES", "Pipeline", "RunRecord", "RunResult", "open_input", "planar_step", "run"]
+__all__ = [
+    "NO_VIEW_ID",
+    "STAGES",
+    "Observer",
+    "Pipeline",
+    "RunRecord",
+    "RunResult",
+    "open_input",
+    "planar_step",
+    "run",
+]
+
+
+class Observer(Protocol):
+    """Watches a run: `on_frame` after every processed frame (the pipeline's parts, the frame, what was
+    recorded for it and the networks' readout), `on_finish` with the result. Live viewers and video
+    writers are observers; an observer must not change the pipeline."""
+
+    def on_frame(
+        self, pipeline: Pipeline, frame: StereoFrame, record: FrameRecord, readout: SpatialReadout
+    ) -> None: ...
+
+    def on_finish(self, result: RunResult) -> None: ...
 
 
 class Pipeline:
@@ -67,7 +91,8 @@ class Pipeline:
 
     `dataset` follows `hippo_nav.datasets.StereoDataset`. `progress` shows a tqdm bar with the frame rate
     and the map size. `odometry` and `view_cells` replace the configured front end (see `frontend.py` for
-    what they must offer). The parts are exposed for notebooks: `engine`, `views`, `odometry`, `map`.
+    what they must offer); `observers` watch the run frame by frame (`Observer`). The parts are exposed
+    for notebooks and observers: `engine`, `views`, `odometry`, `map`, `keyframes`, `record`.
     """
 
     def __init__(
@@ -76,8 +101,9 @@ class Pipeline:
         config: PipelineConfig | None = None,
         progress: bool = False,
         *,
-        odometry: Any = None,
-        view_cells: Any = None,
+        odometry: Odometry | None = None,
+        view_cells: ViewCellFrontEnd | None = None,
+        observers: Sequence[Observer] = (),
     ) -> None:
         import cv2
 
@@ -107,6 +133,7 @@ class Pipeline:
             self._extract = KeyframeExtractor(dataset.calibration, self.config.closure)
             self._measurer = LoopMeasurer(dataset.calibration, self.config.closure)
         self.record = RunRecord()
+        self.observers = list(observers)
         self._stored_views: dict[int, CompactView] = {}
         self._cell_vertex: dict[int, int] = {}  # view cell -> the vertex the agent was at when it was made
         self._vertex_cells: dict[int, list[int]] = {}  # the inverse
@@ -177,6 +204,8 @@ class Pipeline:
         result = self._finish(
             out_dir, interrupted, None if stopped_by is None else str(stopped_by), interrupted_by
         )
+        for observer in self.observers:
+            observer.on_finish(result)
         if stopped_by is not None:
             where = f"written to {out_dir}" if out_dir is not None else "returned in the exception's `result`"
             error = DatasetError(
@@ -249,6 +278,8 @@ class Pipeline:
         self._record(
             frame, step, vo_status, flag, yaw_rate, speed, obs, strength, readout, code, outcome, note, data_flags
         )
+        for observer in self.observers:
+            observer.on_frame(self, frame, self.record.frames[-1], readout)
         self._lap("record", clock)
 
     def _data_flags(self, frame: Any, dt_s: float) -> str:
@@ -636,6 +667,7 @@ def run(
     progress: bool = True,
     odometry: Any = None,
     overwrite: bool = False,
+    observers: Sequence[Observer] = (),
 ) -> RunResult:
     """The `hippo-nav run` command as a function: open the input, run the pipeline, write `out_dir`.
 
@@ -647,4 +679,5 @@ def run(
         log.info("%s", note)
     if callable(odometry) and not hasattr(odometry, "process"):
         odometry = odometry(dataset)
-    return Pipeline(dataset, config, progress=progress, odometry=odometry).run(out_dir, overwrite=overwrite)
+    pipeline = Pipeline(dataset, config, progress=progress, odometry=odometry, observers=observers)
+    return pipeline.run(out_dir, overwrite=overwrite)
