@@ -103,7 +103,7 @@ def test_wrong_root_and_sequence(tmp_path: Path, kitti_root: Path) -> None:
     with pytest.raises(DatasetError, match="no loader recognises"):
         open_dataset(tmp_path / "kitti" / "poses")
     with pytest.raises(DatasetError, match="unknown dataset kind"):
-        open_dataset(kitti_root, "03", kind="euroc")
+        open_dataset(kitti_root, "03", kind="lidar")
 
 
 def test_missing_images(kitti_root: Path) -> None:

@@ -1,8 +1,16 @@
 """Stereo datasets: a small protocol (`StereoDataset`) and a registry with one loader file per dataset.
 
 Adding a dataset = one module with a class that implements `StereoDataset`, has a constructor
-`Loader(root, sequence, **kw)` and a static `detect(path) -> bool`, plus one line in `LOADERS` below.
-`open_dataset(path, sequence)` picks the loader by name (`kind=`) or by detecting the folder layout.
+`Loader(root, sequence, **kw)`, a static `detect(path) -> bool` and `OPTIONS` (the keywords it takes),
+plus one line in `LOADERS` below. `open_dataset(path, sequence)` picks the loader by name (`kind=`) or
+by detecting the layout, in the order of `LOADERS`:
+
+| kind | layout | loader |
+|---|---|---|
+| kitti | `sequences/XX/image_0,image_1`, `calib.txt`, `times.txt`, `poses/XX.txt` | `KittiOdometry` |
+| euroc | `mav0/cam0,cam1/{data.csv,data/,sensor.yaml}`, `state_groundtruth_estimate0/` | `EurocStereo` |
+| rosbag | a ROS 1 `.bag` file or a ROS 2 bag folder (`metadata.yaml`) | `RosbagStereo` |
+| folder | `left/`, `right/`, `calibration.yaml`, optional `times.txt`, `ground_truth.tum` | `StereoFolder` |
 """
 
 from __future__ import annotations
@@ -11,19 +19,41 @@ from pathlib import Path
 from typing import Any
 
 from hippo_nav.datasets.base import StereoCalibration, StereoDataset, StereoFrame
+from hippo_nav.datasets.euroc import EurocStereo
+from hippo_nav.datasets.folder import StereoFolder
 from hippo_nav.datasets.kitti import KittiOdometry
+from hippo_nav.datasets.rosbag import RosbagStereo
 from hippo_nav.io.errors import DatasetError
 
-LOADERS: dict[str, type[KittiOdometry]] = {"kitti": KittiOdometry}  # widen to a Union as loaders arrive
+LOADERS: dict[str, Any] = {
+    "kitti": KittiOdometry,
+    "euroc": EurocStereo,
+    "rosbag": RosbagStereo,
+    "folder": StereoFolder,
+}
+"""Loader classes by kind, in detection order."""
+
+KITTI_OPTIONS = ("start", "stop", "stride", "available_only")
+
+
+def detect_kind(path: str | Path) -> str | None:
+    """The kind of the first loader in `LOADERS` that recognises `path`, or None."""
+    path = Path(path)
+    for kind, loader in LOADERS.items():
+        if loader.detect(path):
+            return kind
+    return None
 
 
 def open_dataset(
-    path: str | Path, sequence: str = "00", *, kind: str | None = None, **kw: Any
+    path: str | Path, sequence: str | None = None, *, kind: str | None = None, **kw: Any
 ) -> StereoDataset:
-    """Open the stereo dataset at `path` (e.g. a KITTI root holding sequences/ and poses/).
+    """Open the stereo dataset at `path`: a KITTI root, an EuRoC/ASL sequence, a ROS bag, a stereo folder.
 
+    `sequence` names a KITTI sequence (default "00") or, for EuRoC and folders, a sub-folder of `path`.
     `kind` names a loader in `LOADERS`; without it the layout decides. Extra keywords (start, stop,
-    stride, available_only) go to the loader.
+    stride, and each loader's own, e.g. `left_topic` for bags) go to the loader; a keyword the loader does
+    not take is an error naming it.
     """
     path = Path(path)
     if not path.exists():
@@ -31,22 +61,39 @@ def open_dataset(
     if kind is not None:
         if kind not in LOADERS:
             raise DatasetError(f"unknown dataset kind {kind!r}; known: {', '.join(sorted(LOADERS))}")
-        return LOADERS[kind](path, sequence, **kw)
-    for loader in LOADERS.values():
-        if loader.detect(path):
-            return loader(path, sequence, **kw)
-    raise DatasetError(
-        f"{path}: no loader recognises this folder (known layouts: {', '.join(sorted(LOADERS))}); "
-        "for KITTI pass the folder that holds sequences/ and poses/"
-    )
+    else:
+        kind = detect_kind(path)
+        if kind is None:
+            raise DatasetError(
+                f"{path}: no loader recognises this path (known layouts: {', '.join(LOADERS)}); for KITTI "
+                "pass the folder that holds sequences/ and poses/, for EuRoC the folder that holds mav0/, "
+                "for a ROS bag the .bag file or ROS 2 bag folder, for a stereo folder one with left/, right/ "
+                "and calibration.yaml"
+            )
+    loader = LOADERS[kind]
+    options = getattr(loader, "OPTIONS", KITTI_OPTIONS)
+    unknown = sorted(k for k, v in kw.items() if k not in options and v is not None)
+    if unknown:
+        raise DatasetError(
+            f"{path}: option(s) {', '.join(unknown)} do not apply to a {kind} dataset "
+            f"(it takes {', '.join(options)})"
+        )
+    kw = {k: v for k, v in kw.items() if k in options}
+    if kind == "kitti":
+        return loader(path, "00" if sequence is None else sequence, **kw)
+    return loader(path, sequence, **kw)
 
 
 __all__ = [
     "LOADERS",
     "DatasetError",
+    "EurocStereo",
     "KittiOdometry",
+    "RosbagStereo",
     "StereoCalibration",
     "StereoDataset",
+    "StereoFolder",
     "StereoFrame",
+    "detect_kind",
     "open_dataset",
 ]

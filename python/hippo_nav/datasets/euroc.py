@@ -1,0 +1,288 @@
+"""EuRoC MAV / ASL stereo loader: raw images of cam0 (left) and cam1 (right), rectified on the fly.
+
+```
+<sequence>/mav0/cam0/data.csv        "#timestamp [ns],filename", one image a line
+<sequence>/mav0/cam0/data/<filename> 8-bit gray, distorted
+<sequence>/mav0/cam0/sensor.yaml     intrinsics [fu, fv, cu, cv], distortion_model (radial-tangential or
+                                     equidistant), distortion_coefficients, T_BS (4×4 body_from_sensor),
+                                     resolution [w, h]
+<sequence>/mav0/cam1/...             the same for the right camera
+<sequence>/mav0/state_groundtruth_estimate0/data.csv   optional: timestamp [ns], p_RS_R xyz [m],
+                                     q_RS wxyz, … (the pose of the body S in the world R)
+```
+
+`root` may be the sequence folder (holding `mav0/`), `mav0/` itself, or a folder of sequences with
+`sequence` naming one. Left and right images are paired by timestamp (EuRoC triggers both cameras
+together; a frame one camera dropped is skipped and reported). Frame numbers are the rows of
+cam0/data.csv.
+
+Rectification (`hippo_nav.datasets.rectify`): the pose of cam1 in cam0 is `T_BS0⁻¹ T_BS1`; the
+rectified calibration is P0/P1 of `cv2.stereoRectify` (alpha 0, zero disparity), the maps are computed
+once. Ground truth: the body pose `world_from_body` at each image time (interpolated, 200 Hz samples)
+becomes the rectified camera 0's pose `world_from_body · T_BS0 · [R0ᵀ | 0]`. The world frame is EuRoC's
+(gravity along −z); the pipeline rebases to the first frame. EuRoC's ground truth starts a moment after the
+cameras: frames outside its span are left out (`trim_to_ground_truth`, see `hippo_nav.datasets.common`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+
+from hippo_nav.datasets.base import StereoFrame
+from hippo_nav.datasets.common import (
+    FrameSelection,
+    check_increasing,
+    ground_truth_at_frames,
+    pair_by_time,
+    read_image,
+    read_yaml,
+    yaml_numbers,
+)
+from hippo_nav.datasets.rectify import StereoRectifier, distortion_kind, rectify_rig
+from hippo_nav.io.errors import DatasetError, file_error
+from hippo_nav.io.poses import matrix_from_quaternion
+
+
+def find_mav0(path: Path) -> Path | None:
+    """The `mav0` folder of an ASL sequence at `path` (the sequence folder or mav0 itself), or None."""
+    if (path / "mav0" / "cam0").is_dir():
+        return path / "mav0"
+    if (path / "cam0").is_dir() and (path / "cam1").is_dir():
+        return path
+    return None
+
+
+class CameraFiles:
+    """One ASL camera folder: its images (timestamps ns, paths) and its sensor.yaml."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = folder
+        if not folder.is_dir():
+            raise DatasetError(f"{folder}: camera folder missing; a stereo ASL sequence needs cam0 and cam1")
+        self.stamps_ns, self.files = self._read_list(folder / "data.csv")
+        sensor = folder / "sensor.yaml"
+        data = read_yaml(sensor, "camera calibration (sensor.yaml)")
+        if str(data.get("camera_model", "pinhole")).lower() != "pinhole":
+            raise file_error(sensor, f"camera_model {data['camera_model']!r} is not supported; use pinhole")
+        fu, fv, cu, cv = yaml_numbers(data, "intrinsics", sensor, 4, "[fu, fv, cu, cv]")
+        self.K = np.array([[fu, 0.0, cu], [0.0, fv, cv], [0.0, 0.0, 1.0]])
+        self.model = str(data.get("distortion_model", "radial-tangential"))
+        distortion_kind(self.model, str(sensor))
+        self.D = (
+            yaml_numbers(data, "distortion_coefficients", sensor, None, "k1, k2, p1, p2")
+            if "distortion_coefficients" in data
+            else np.zeros(4)
+        )
+        self.body_from_sensor = yaml_numbers(data, "T_BS", sensor, 16, "4x4 body_from_sensor").reshape(4, 4)
+        if np.abs(self.body_from_sensor[3] - [0, 0, 0, 1]).max() > 1e-9:
+            raise file_error(sensor, "T_BS's last row must be [0, 0, 0, 1]")
+        width, height = yaml_numbers(data, "resolution", sensor, 2, "[width, height]")
+        self.image_size_px = (int(width), int(height))
+        self.sensor_path = sensor
+
+    @staticmethod
+    def _read_list(path: Path) -> tuple[np.ndarray, list[str]]:
+        if not path.is_file():
+            raise DatasetError(f"{path}: image list not found (an ASL camera folder has data.csv)")
+        stamps: list[int] = []
+        files: list[str] = []
+        for number, text in enumerate(path.read_text().splitlines(), start=1):
+            line = text.strip()
+            if not line or line.startswith("#"):
+                continue
+            fields = [f.strip() for f in line.split(",")]
+            if len(fields) != 2:
+                raise file_error(path, f"expected 'timestamp_ns,filename', got {line[:40]!r}", number)
+            try:
+                stamp = int(fields[0])
+            except ValueError:
+                raise file_error(
+                    path, f"timestamp {fields[0][:30]!r} is not an integer (ns)", number
+                ) from None
+            if stamps and stamp <= stamps[-1]:
+                raise file_error(path, f"timestamp {stamp} does not increase; sort the list by time", number)
+            stamps.append(stamp)
+            files.append(fields[1])
+        if not stamps:
+            raise file_error(path, "lists no images")
+        return np.array(stamps, dtype=np.int64), files
+
+    def image_path(self, row: int) -> Path:
+        return self.folder / "data" / self.files[row]
+
+
+def read_ground_truth(path: Path) -> tuple[np.ndarray, np.ndarray]:
+    """EuRoC `state_groundtruth_estimate0/data.csv`: (timestamps s, world_from_body (N, 4, 4))."""
+    stamps: list[float] = []
+    poses: list[np.ndarray] = []
+    for number, text in enumerate(path.read_text().splitlines(), start=1):
+        line = text.strip()
+        if not line or line.startswith("#"):
+            continue
+        fields = line.split(",")
+        if len(fields) < 8:
+            raise file_error(
+                path, f"expected timestamp, p xyz, q wxyz (8+ columns), found {len(fields)}", number
+            )
+        try:
+            stamp_ns = int(fields[0])
+            values = np.array([float(f) for f in fields[1:8]])
+        except ValueError:
+            raise file_error(path, f"not a number in {line[:60]!r}", number) from None
+        quaternion_wxyz = values[3:]
+        norm = float(np.linalg.norm(quaternion_wxyz))
+        if not np.isfinite(values).all() or abs(norm - 1) > 1e-3:
+            raise file_error(
+                path, f"the quaternion (w x y z) has norm {norm:.4g}; it must be a unit quaternion", number
+            )
+        if stamps and stamp_ns * 1e-9 <= stamps[-1]:
+            raise file_error(path, f"timestamp {stamp_ns} does not increase", number)
+        pose = np.eye(4)
+        pose[:3, :3] = matrix_from_quaternion(np.roll(quaternion_wxyz, -1))
+        pose[:3, 3] = values[:3]
+        stamps.append(stamp_ns * 1e-9)
+        poses.append(pose)
+    if not stamps:
+        raise file_error(path, "holds no poses")
+    return np.array(stamps), np.stack(poses)
+
+
+class EurocStereo:
+    """An EuRoC / ASL stereo sequence as a rectified `StereoDataset` (layout and semantics: module doc)."""
+
+    OPTIONS = ("start", "stop", "stride", "max_stereo_dt_s", "trim_to_ground_truth")
+
+    def __init__(
+        self,
+        root: str | Path,
+        sequence: str | None = None,
+        start: int | None = None,
+        stop: int | None = None,
+        stride: int = 1,
+        max_stereo_dt_s: float | None = None,
+        trim_to_ground_truth: bool = True,
+    ) -> None:
+        root = Path(root)
+        folder = root / sequence if sequence else root
+        mav0 = find_mav0(folder)
+        if mav0 is None:
+            sequences = (
+                sorted(p.name for p in root.iterdir() if p.is_dir() and find_mav0(p)) if root.is_dir() else []
+            )
+            if sequences and not sequence:
+                raise DatasetError(
+                    f"{root}: holds several ASL sequences; name one with sequence (--sequence): "
+                    f"{', '.join(sequences)}"
+                )
+            present = f"; present: {', '.join(sequences)}" if sequences else ""
+            raise DatasetError(f"{folder}: not an EuRoC/ASL sequence (no mav0/cam0 folder){present}")
+        self.root = mav0.parent if mav0.name == "mav0" else mav0
+        self.name = f"euroc_{self.root.name}"
+        self.note = ""
+        self.warnings: list[str] = []
+        self.stride = int(stride)
+        left, right = CameraFiles(mav0 / "cam0"), CameraFiles(mav0 / "cam1")
+        if left.image_size_px != right.image_size_px:
+            raise DatasetError(
+                f"{right.sensor_path}: resolution {right.image_size_px} differs from cam0's "
+                f"{left.image_size_px}; stereo pairs must have equal sizes"
+            )
+        self._left, self._right = left, right
+
+        # Stereo pairs by timestamp, then the frame range.
+        tolerance_s = None if max_stereo_dt_s is None else float(max_stereo_dt_s)
+        left_rows, right_rows, _ = pair_by_time(left.stamps_ns * 1e-9, right.stamps_ns * 1e-9, tolerance_s)
+        where = f"{mav0 / 'cam0' / 'data.csv'}"
+        selection = FrameSelection(left_rows, len(left.files), start, stop, stride, where)
+        self.missing_frames = selection.missing_frames
+        self.warnings += selection.warnings
+        partner = dict(zip(left_rows.tolist(), right_rows.tolist()))
+        frames = selection.frames
+        if len(left_rows) < max(len(left.files), len(right.files)):
+            self.warnings.append(
+                f"cam0 lists {len(left.files)} images and cam1 {len(right.files)}: {len(left_rows)} pairs "
+                "matched by timestamp, the other images are not used"
+            )
+
+        # Rectification, checked now (before any frame is processed).
+        first = read_image(left.image_path(int(frames[0])))
+        if (first.shape[1], first.shape[0]) != left.image_size_px:
+            raise DatasetError(
+                f"{left.image_path(int(frames[0]))}: size {first.shape[::-1]} differs from the resolution "
+                f"{left.image_size_px} in {left.sensor_path}"
+            )
+        if right.model.lower() != left.model.lower():
+            raise DatasetError(
+                f"{right.sensor_path}: distortion model {right.model!r} differs from cam0's {left.model!r}"
+            )
+        camera0_from_camera1 = np.linalg.inv(left.body_from_sensor) @ right.body_from_sensor
+        self.rectifier: StereoRectifier = rectify_rig(
+            left.K,
+            left.D,
+            right.K,
+            right.D,
+            camera0_from_camera1,
+            left.image_size_px,
+            left.model,
+            f"{left.sensor_path} + {right.sensor_path.parent.name}/sensor.yaml",
+        )
+        self.calibration = self.rectifier.calibration
+
+        # Ground truth at the image times, in the rectified camera 0.
+        times_s = left.stamps_ns[frames] * 1e-9
+        self._ground_truth = None
+        gt_path = mav0 / "state_groundtruth_estimate0" / "data.csv"
+        if gt_path.is_file():
+            gt_s, world_from_body = read_ground_truth(gt_path)
+            world_from_camera = self.rectifier.rectified_pose(world_from_body @ left.body_from_sensor)
+            gt, keep, notes = ground_truth_at_frames(
+                gt_s, world_from_camera, times_s, trim_to_ground_truth, str(gt_path)
+            )
+            self.warnings += notes
+            frames, times_s, self._ground_truth = frames[keep], times_s[keep], gt
+        self.frame_indices = frames
+        self.timestamps_s = times_s
+        check_increasing(self.timestamps_s, where)
+        self._right_rows = np.array([partner[int(f)] for f in frames], dtype=np.int64)
+        if self.warnings:
+            self.note = "; ".join(self.warnings)
+
+    def __len__(self) -> int:
+        return len(self.frame_indices)
+
+    def __getitem__(self, i: int) -> StereoFrame:
+        n = len(self.frame_indices)
+        if not -n <= i < n:
+            raise IndexError(f"frame {i} out of range for a dataset of {n} frames")
+        frame = int(self.frame_indices[i])
+        left_path = self._left.image_path(frame)
+        right_path = self._right.image_path(int(self._right_rows[i]))
+        left, right = read_image(left_path), read_image(right_path)
+        for path, image in ((left_path, left), (right_path, right)):
+            if (image.shape[1], image.shape[0]) != self.calibration.image_size_px:
+                raise DatasetError(
+                    f"{path}: size {image.shape[::-1]} differs from the calibrated resolution "
+                    f"{self.calibration.image_size_px}"
+                )
+        left, right = self.rectifier(left, right)
+        return StereoFrame(frame, float(self.timestamps_s[i]), left, right)
+
+    def __iter__(self) -> Iterator[StereoFrame]:
+        for i in range(len(self)):
+            yield self[i]
+
+    def ground_truth(self) -> np.ndarray | None:
+        return None if self._ground_truth is None else self._ground_truth.copy()
+
+    @staticmethod
+    def detect(path: Path) -> bool:
+        """True for an ASL sequence folder, its mav0 folder, or a folder of ASL sequences."""
+        if find_mav0(path) is not None:
+            return True
+        return path.is_dir() and any(p.is_dir() and find_mav0(p) is not None for p in path.iterdir())
+
+    def __repr__(self) -> str:
+        return f"EurocStereo(root={str(self.root)!r}, frames={len(self)})"
