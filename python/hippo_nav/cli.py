@@ -30,7 +30,32 @@ def build_parser() -> argparse.ArgumentParser:
         "map, metrics.json, the resolved config and figures into --out.",
     )
     run.add_argument("--kitti", metavar="ROOT", help="KITTI odometry root (holds sequences/ and poses/)")
-    run.add_argument("--sequence", default=None, help="KITTI sequence number (with --kitti; default 00)")
+    run.add_argument(
+        "--dataset",
+        metavar="PATH",
+        help="any stereo dataset, recognised by its layout: a KITTI root, an EuRoC/ASL sequence (holds mav0/), "
+        "a ROS 1 .bag file or ROS 2 bag folder, or a folder with left/, right/ and calibration.yaml",
+    )
+    run.add_argument(
+        "--dataset-kind",
+        choices=["kitti", "euroc", "rosbag", "folder"],
+        default=None,
+        help="read --dataset as this kind instead of detecting it",
+    )
+    run.add_argument("--left-topic", metavar="TOPIC", help="ROS bag: left image topic (sensor_msgs/Image)")
+    run.add_argument("--right-topic", metavar="TOPIC", help="ROS bag: right image topic")
+    run.add_argument(
+        "--topics",
+        metavar="YAML",
+        help="ROS bag: YAML with left_topic, right_topic and the calibration (CameraInfo topics, or fx, fy, "
+        "cx, cy, baseline_m); flags win over it",
+    )
+    run.add_argument(
+        "--sequence",
+        default=None,
+        help="KITTI sequence number (with --kitti, or --dataset on a KITTI root; default 00), or a sequence "
+        "folder inside --dataset (EuRoC, stereo folder)",
+    )
     run.add_argument("--start", type=int, default=None, help="first frame")
     run.add_argument("--stop", type=int, default=None, help="frame to stop before")
     run.add_argument("--stride", type=int, default=1, help="use every n-th frame")
@@ -123,18 +148,24 @@ def _run(args: argparse.Namespace) -> int:
     from hippo_nav.pipeline import load_config, run
     from hippo_nav.pipeline.results import bump_rows, format_bump_table
 
-    if args.kitti is None and args.sequence is not None:
+    if args.kitti is None and args.dataset is None and args.sequence is not None:
         raise HippoNavError(
-            f"--sequence {args.sequence} needs --kitti ROOT (the KITTI root that holds it); "
-            "without --kitti the built-in demo runs"
+            f"--sequence {args.sequence} needs --kitti ROOT (the KITTI root that holds it) or --dataset PATH; "
+            "without them the built-in demo runs"
         )
     if args.kitti is not None and not Path(args.kitti).is_dir():
         raise HippoNavError(f"--kitti {args.kitti}: no such folder (give the KITTI odometry root)")
     if args.seed is not None and not 0 <= args.seed <= MAX_SEED:
         raise HippoNavError(f"--seed {args.seed}: give an integer from 0 to {MAX_SEED}")
-    sequence = args.sequence or "00"
+    kind, options = _dataset_input(args)
+    sequence = (args.sequence or "00") if kind == "kitti" else args.sequence
     if args.out is None:
-        args.out = "runs/demo" if args.kitti is None else f"runs/kitti_{sequence}"
+        if args.kitti is None and args.dataset is None:
+            args.out = "runs/demo"
+        elif kind == "kitti":
+            args.out = f"runs/kitti_{sequence}"
+        else:
+            args.out = f"runs/{args.sequence or Path(args.dataset).resolve().stem}"
     odometry = _replay(args)
     config = load_config(args.config)
     if args.lesion:
@@ -145,7 +176,7 @@ def _run(args: argparse.Namespace) -> int:
         config = config.model_copy(update={"output": config.output.model_copy(update={"figures": False})})
     result = run(
         args.out,
-        kitti=args.kitti,
+        kitti=args.kitti or args.dataset,
         sequence=sequence,
         start=args.start,
         stop=args.stop,
@@ -154,6 +185,8 @@ def _run(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
         odometry=odometry,
         overwrite=args.overwrite,
+        dataset_kind=kind if args.dataset is not None else None,
+        dataset_options=options,
     )
     print(json.dumps(_summary(result.metrics), indent=2))
     # The paper's bump table (μ, σ of every grid bump, fused, place) at the last snapshot frame only;
@@ -168,6 +201,32 @@ def _run(args: argparse.Namespace) -> int:
         return _SIGNAL_EXIT.get(result.metrics.get("interrupted_by", "SIGINT"), 130)
     print(f"results written to {args.out}")
     return 0
+
+
+def _dataset_input(args: argparse.Namespace) -> tuple[str | None, dict[str, Any]]:
+    """The dataset kind of `--kitti`/`--dataset` (None for the demo) and the loader options of the flags."""
+    from hippo_nav import HippoNavError
+    from hippo_nav.datasets import detect_kind
+
+    topics = {"left_topic": args.left_topic, "right_topic": args.right_topic, "topics": args.topics}
+    options = {key: value for key, value in topics.items() if value is not None}
+    flags = ", ".join("--" + key.replace("_", "-") for key in options)
+    if args.dataset is None:
+        for given, flag in ((args.dataset_kind, "--dataset-kind"), (options, flags)):
+            if given:
+                raise HippoNavError(f"{flag} needs --dataset PATH (the dataset to read)")
+        return ("kitti" if args.kitti is not None else None), {}
+    if args.kitti is not None:
+        raise HippoNavError("give --kitti ROOT or --dataset PATH, not both")
+    path = Path(args.dataset)
+    if not path.exists():
+        raise HippoNavError(f"--dataset {args.dataset}: no such file or folder")
+    kind = args.dataset_kind or detect_kind(path)
+    if options and kind not in ("rosbag", None):
+        raise HippoNavError(f"{flags}: only for ROS bags; {args.dataset} is a {kind} dataset")
+    if args.topics is not None and not Path(args.topics).is_file():
+        raise HippoNavError(f"--topics {args.topics}: no such file (a YAML with left_topic, right_topic, …)")
+    return kind, options
 
 
 def _replay(args: argparse.Namespace) -> Callable[[Any], Any] | None:

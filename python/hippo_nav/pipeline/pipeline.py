@@ -638,13 +638,16 @@ def corrected_track(record: RunRecord, vertex_poses: np.ndarray) -> np.ndarray:
 
 def open_input(
     kitti: str | Path | None = None,
-    sequence: str = "00",
+    sequence: str | None = "00",
     start: int | None = None,
     stop: int | None = None,
     stride: int = 1,
     progress: bool = False,
+    kind: str | None = None,
+    options: dict[str, Any] | None = None,
 ) -> Any:
-    """The dataset of a run: a KITTI sequence, or (no `kitti`) the built-in synthetic demo loop."""
+    """The dataset of a run: any `open_dataset` path (KITTI root, EuRoC, ROS bag, stereo folder; `kind` and
+    loader `options` as there), or (no `kitti`) the built-in synthetic demo loop."""
     from hippo_nav.datasets import KittiOdometry, open_dataset
 
     if kitti is None:
@@ -653,13 +656,13 @@ def open_input(
         dataset = KittiOdometry(demo_sequence(progress=progress), DEMO_SEQUENCE, start, stop, stride)
         dataset.name = "synthetic demo loop"
         return dataset
-    return open_dataset(kitti, sequence, start=start, stop=stop, stride=stride)
+    return open_dataset(kitti, sequence, kind=kind, start=start, stop=stop, stride=stride, **(options or {}))
 
 
 def run(
     out_dir: str | Path | None = "runs/demo",
     kitti: str | Path | None = None,
-    sequence: str = "00",
+    sequence: str | None = "00",
     start: int | None = None,
     stop: int | None = None,
     stride: int = 1,
@@ -668,12 +671,15 @@ def run(
     odometry: Any = None,
     overwrite: bool = False,
     observers: Sequence[Observer] = (),
+    dataset_kind: str | None = None,
+    dataset_options: dict[str, Any] | None = None,
 ) -> RunResult:
     """The `hippo-nav run` command as a function: open the input, run the pipeline, write `out_dir`.
 
     `odometry` replaces the built-in stereo VO (e.g. another system's trajectory replayed from a file,
-    see `hippo_nav.vo.replay`); it may also be a callable taking the opened dataset and returning one."""
-    dataset = open_input(kitti, sequence, start, stop, stride, progress=progress)
+    see `hippo_nav.vo.replay`); it may also be a callable taking the opened dataset and returning one.
+    `kitti` may be any dataset path `open_dataset` reads; `dataset_kind`/`dataset_options` go to it."""
+    dataset = open_input(kitti, sequence, start, stop, stride, progress, dataset_kind, dataset_options)
     note = getattr(dataset, "note", "")
     if note:
         log.info("%s", note)
