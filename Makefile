@@ -3,7 +3,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.deps-installed
 
-.PHONY: help setup develop demo test test-rust test-python bench lint
+.PHONY: help setup develop demo test test-rust test-python bench bench-gtsam lint
 
 help: ## list targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed 's/:.*## /\t/'
@@ -32,6 +32,10 @@ test: test-rust test-python ## the whole test suite (what CI runs)
 bench: develop ## criterion and pytest-benchmark benchmarks
 	cargo bench --workspace
 	$(PY) -m pytest --benchmark-only --benchmark-enable tests/benchmarks
+
+bench-gtsam: setup ## the pose-graph solver against GTSAM's LM, one table (installs the optional gtsam)
+	$(VENV)/bin/maturin develop --release --quiet --extras test,bench
+	$(PY) tests/benchmarks/posegraph_vs_gtsam.py
 
 lint: develop ## formatting and lints
 	cargo fmt --all -- --check

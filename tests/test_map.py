@@ -213,9 +213,42 @@ def test_g2o_write_read_round_trip(tmp_path) -> None:
     assert graph.is_loop().sum() > 0
 
 
+def test_pose_graph_arrays_round_trip_and_solver_settings() -> None:
+    # A loop of 200 poses: long enough for its bending mode to be slow (eigenvalue ≈ 1/n² of the largest).
+    poses, edges, measurements, information, is_loop = _loop_arrays(200)
+    graph = PoseGraph.from_arrays(poses, edges, measurements, information, is_loop)
+    np.testing.assert_array_equal(graph.measurements(), measurements)
+    np.testing.assert_array_equal(graph.information(), information)
+    np.testing.assert_array_equal(graph.edges(), edges)
+    np.testing.assert_array_equal(graph.is_loop(), is_loop)
+    # max_iterations=0 runs only the initialisation.
+    start = graph.optimize(initialization="odometry", max_iterations=0)
+    assert start["iterations"] == 0
+    assert graph.chi2() == pytest.approx(start["initial_chi2"])
+    dead_reckoning = graph.poses()
+    undamped = PoseGraph.from_arrays(dead_reckoning, edges, measurements, information, is_loop)
+    report = undamped.optimize(initialization="current", relative_cost_tolerance=1e-12)
+    damped = PoseGraph.from_arrays(dead_reckoning, edges, measurements, information, is_loop)
+    before = damped.optimize(
+        initialization="current",
+        relative_cost_tolerance=1e-12,
+        initial_lambda_scale=1e-5,
+        max_lambda_decrease=3.0,
+    )
+    # Same optimum; the damped schedule before issue 11 needs more steps to get there.
+    assert report["converged"] and before["converged"]
+    assert report["final_chi2"] == pytest.approx(before["final_chi2"], rel=1e-9)
+    assert report["iterations"] < before["iterations"]
+    with pytest.raises(HippoNavError, match="initial_lambda_scale"):
+        graph.optimize(initial_lambda_scale=-1.0)
+    with pytest.raises(HippoNavError, match="max_lambda_decrease"):
+        graph.optimize(max_lambda_decrease=0.5)
+
+
 @pytest.mark.data
-def test_intel_benchmark_reaches_reference_optimum(shared_data) -> None:
+@pytest.mark.parametrize("initialization", ["chordal", "odometry"])
+def test_intel_benchmark_reaches_reference_optimum(shared_data, initialization: str) -> None:
     graph = read_g2o(shared_data / "posegraphs" / "intel.g2o")
-    report = graph.optimize(initialization="chordal")
+    report = graph.optimize(initialization=initialization)
     assert report["converged"]
     assert report["final_chi2"] == pytest.approx(45.005, rel=1e-3)

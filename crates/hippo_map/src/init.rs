@@ -120,7 +120,7 @@ pub fn initialize_chordal(graph: &mut PoseGraph) -> Result<()> {
             (None, None) => {}
         }
     }
-    system.solve_damped(&[], &mut rhs)?;
+    system.solve_damped(0.0, &mut rhs)?;
     let mut yaw = vec![fixed_pose.yaw; graph.len()];
     for (v, f) in free.iter().enumerate() {
         if let Some(i) = f {
@@ -175,7 +175,7 @@ pub fn initialize_chordal(graph: &mut PoseGraph) -> Result<()> {
             (None, None) => {}
         }
     }
-    system.solve_damped(&[], &mut rhs)?;
+    system.solve_damped(0.0, &mut rhs)?;
     for (v, f) in free.iter().enumerate() {
         graph.poses[v] = match f {
             Some(i) => Pose2::new(rhs[2 * i], rhs[2 * i + 1], yaw[v]),

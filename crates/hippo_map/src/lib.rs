@@ -4,7 +4,8 @@
 //! - [`graph`]: the pose graph, its g2o `EdgeSE2` cost `χ² = Σ eᵀΩe`, dead reckoning and ATE.
 //! - [`g2o`]: reader and writer of g2o 2-D pose graphs.
 //! - [`init`]: chordal initialisation (linear rotations, then linear translations).
-//! - [`solve`]: exact correction, sparse Levenberg–Marquardt on faer's Cholesky, robust loss on loops.
+//! - [`solve`]: exact correction, sparse Gauss–Newton with a Levenberg–Marquardt fallback on faer's
+//!   Cholesky (ordering, symbolic factorisation and buffers set up once per solve), robust loss on loops.
 //! - [`relax`]: the paper's correction, RatSLAM-style iterative relaxation.
 //! - [`experience`]: the experience map driven per camera frame (creation rule, loop closure, ambiguity).
 //! - [`persist`]: versioned, checksummed map files.

@@ -1,13 +1,27 @@
-//! Exact pose-graph correction: sparse nonlinear least squares on SE(2) by Levenberg–Marquardt.
+//! Exact pose-graph correction: sparse nonlinear least squares on SE(2), Gauss–Newton first and
+//! Levenberg–Marquardt when a step fails.
 //!
 //! Minimises `F(x) = Σ_odometry eᵀΩe + Σ_loop ρ(eᵀΩe)` over all poses but the fixed one, with g2o's
 //! `EdgeSE2` residual `e` (see [`crate::graph`]). Poses are updated additively in `(x, y, yaw)` and the
-//! yaw is wrapped. Each iteration linearises `e ≈ e₀ + J δ`, assembles `H = Σ w JᵀΩJ` and `g = Σ w JᵀΩe`
-//! (`w = ρ'(eᵀΩe)`, iteratively reweighted least squares; `w = 1` off the robust edges), and solves
-//! `(H + λI) δ = −g` with faer's sparse Cholesky. The symbolic factorisation is computed once per solve
-//! and reused by every iteration. λ follows Nielsen's rule: a step is accepted when it lowers `F`, and
-//! `λ` shrinks by `max(1/3, 1 − (2ρ − 1)³)` with `ρ` the ratio of actual to predicted decrease; a rejected
-//! step multiplies λ by a growing factor. λ → 0 is Gauss–Newton.
+//! yaw is wrapped. Each iteration
+//! 1. linearises `e ≈ e₀ + J δ` and assembles `H = Σ w JᵀΩJ` and `g = Σ w JᵀΩe` (`w = ρ'(eᵀΩe)`,
+//!    iteratively reweighted least squares; `w = 1` off the robust edges);
+//! 2. solves `(H + λI) δ = −g` with faer's sparse Cholesky ([`crate::sparse`]: ordering, symbolic
+//!    factorisation, the factor's and the workspace's memory are set up once per solve);
+//! 3. accepts the step when it lowers `F`, else rejects it and raises λ.
+//!
+//! **Damping schedule.** The first step is undamped (λ = 0, Gauss–Newton, as GTSAM's λ₀ = 10⁻⁵ is in
+//! effect on these costs). A pose graph's slow modes — a long corridor bending, a grid world shearing as
+//! a whole — have eigenvalues of `H` many orders of magnitude below its largest diagonal entry (≈ 1/n² of
+//! it for a chain of n poses), so any λ comparable to them turns the step into gradient descent along
+//! exactly the directions that carry the correction. The schedule before (λ₀ = 10⁻⁵·max diag(H), shrinking
+//! at most 3× per accepted step, Nielsen's rule) needed 10–17 iterations where Gauss–Newton needs 3–4,
+//! and, started from dead reckoning, crept into a poor local minimum of city10000 (χ² 1 484.7 instead of
+//! 511.99) that the full Gauss–Newton step jumps over. Only when a step does not lower `F` does λ become
+//! `fallback_lambda_scale · max diag(H)` (growing `ν`-fold, ν doubling, on further rejections); accepted
+//! steps then shrink it by `max(1/max_lambda_decrease, 1 − (2ρ − 1)³)`, `ρ` the ratio of actual to
+//! predicted decrease, back towards Gauss–Newton. The solve stops when an accepted step lowers `F` by less
+//! than `relative_cost_tolerance` of it, or when a rejected step was predicted to gain less than that.
 //!
 //! Robust loss (loop edges only, odometry is trusted): Cauchy `ρ(s) = c² ln(1 + s/c²)`, or dynamic
 //! covariance scaling (DCS, Agarwal et al. ICRA 2013), which as a loss is `ρ(s) = s` for `s ≤ Φ` and
@@ -15,10 +29,10 @@
 //! weight, so it cannot drag the map. Robust losses are non-convex, so they need a start that does not
 //! already trust the closures: [`Initialization::Odometry`] is the usual one for them.
 use crate::error::{MapError, Result};
-use crate::graph::{EdgeKind, PoseGraph};
+use crate::graph::{quadratic_form, Edge, EdgeKind, PoseGraph};
 use crate::init::{free_indices, initialize_chordal};
-use crate::se2::wrap_angle;
-use crate::sparse::BlockSystem;
+use crate::se2::{wrap_angle, Pose2};
+use crate::sparse::{BlockSlot, BlockSystem};
 use serde::{Deserialize, Serialize};
 
 /// Loss applied to loop edges.
@@ -79,26 +93,81 @@ pub enum Initialization {
     Chordal,
 }
 
+/// Settings of [`optimize`]. Missing fields of a serialised value take their defaults.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
 pub struct SolverParams {
+    /// Iterations (factorisations, accepted or not) at most.
     pub max_iterations: usize,
-    /// Stop when an accepted step lowers the cost by less than this fraction of it.
+    /// Stop when an accepted step lowers the cost by less than this fraction of it (Ceres's
+    /// `function_tolerance`, GTSAM's `relativeErrorTol`). Gauss–Newton converges quadratically, so the
+    /// cost is then exact to about the square of this.
     pub relative_cost_tolerance: f64,
     /// Stop when `max|g|` (gradient of ½F) falls below this.
     pub gradient_tolerance: f64,
-    /// Initial λ as a fraction of the largest diagonal entry of `H` (g2o's τ).
+    /// λ of the first step as a fraction of the largest diagonal entry of `H` (g2o's τ). 0 (default):
+    /// the first step is Gauss–Newton; 10⁻⁵ with `max_lambda_decrease = 3` is the schedule before.
     pub initial_lambda_scale: f64,
+    /// λ after the first rejected step, as a fraction of the largest diagonal entry of `H` (when the
+    /// current λ times ν is smaller).
+    pub fallback_lambda_scale: f64,
+    /// On an accepted step λ shrinks by at most this factor (Nielsen's rule uses 3, GTSAM 10).
+    pub max_lambda_decrease: f64,
     pub robust_loss: RobustLoss,
     pub initialization: Initialization,
+}
+
+impl SolverParams {
+    fn validate(&self) -> Result<()> {
+        self.robust_loss.validate()?;
+        let checks: [(&'static str, f64, &'static str, bool); 4] = [
+            (
+                "relative_cost_tolerance",
+                self.relative_cost_tolerance,
+                "finite and >= 0",
+                self.relative_cost_tolerance >= 0.0,
+            ),
+            (
+                "initial_lambda_scale",
+                self.initial_lambda_scale,
+                "finite and >= 0 (0 starts with a Gauss-Newton step)",
+                self.initial_lambda_scale >= 0.0,
+            ),
+            (
+                "fallback_lambda_scale",
+                self.fallback_lambda_scale,
+                "finite and > 0",
+                self.fallback_lambda_scale > 0.0,
+            ),
+            (
+                "max_lambda_decrease",
+                self.max_lambda_decrease,
+                "finite and >= 1",
+                self.max_lambda_decrease >= 1.0,
+            ),
+        ];
+        for (what, value, requirement, ok) in checks {
+            if !(ok && value.is_finite()) {
+                return Err(MapError::InvalidParameter {
+                    what,
+                    requirement,
+                    value,
+                });
+            }
+        }
+        Ok(())
+    }
 }
 
 impl Default for SolverParams {
     fn default() -> Self {
         Self {
             max_iterations: 100,
-            relative_cost_tolerance: 1e-10,
+            relative_cost_tolerance: 1e-6,
             gradient_tolerance: 1e-9,
-            initial_lambda_scale: 1e-5,
+            initial_lambda_scale: 0.0,
+            fallback_lambda_scale: 1e-5,
+            max_lambda_decrease: 10.0,
             robust_loss: RobustLoss::None,
             initialization: Initialization::Chordal,
         }
@@ -121,7 +190,7 @@ pub enum Termination {
 
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct SolveReport {
-    /// Accepted and rejected LM iterations (each one factorisation).
+    /// Accepted and rejected iterations (each one factorisation).
     pub iterations: usize,
     /// `χ²` (plain, all edges) at the start, after initialisation.
     pub initial_chi2: f64,
@@ -138,9 +207,9 @@ pub struct SolveReport {
 /// Partial derivatives of the residual w.r.t. `(x, y, yaw)` of `from` and `to`.
 #[inline]
 fn linearize(
-    from: &crate::se2::Pose2,
-    to: &crate::se2::Pose2,
-    measured: &crate::se2::Pose2,
+    from: &Pose2,
+    to: &Pose2,
+    measured: &Pose2,
 ) -> ([f64; 3], [[f64; 3]; 3], [[f64; 3]; 3]) {
     let (si, ci) = from.yaw.sin_cos();
     let (sz, cz) = measured.yaw.sin_cos();
@@ -198,7 +267,7 @@ fn mat3_mul(a: &[[f64; 3]; 3], b: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
 }
 
 /// Objective `F` and plain `χ²` at the given poses.
-fn objective(graph: &PoseGraph, poses: &[crate::se2::Pose2], loss: &RobustLoss) -> (f64, f64) {
+fn objective(graph: &PoseGraph, poses: &[Pose2], loss: &RobustLoss) -> (f64, f64) {
     let mut cost = 0.0;
     let mut chi2 = 0.0;
     for e in &graph.edges {
@@ -212,10 +281,263 @@ fn objective(graph: &PoseGraph, poses: &[crate::se2::Pose2], loss: &RobustLoss) 
     (cost, chi2)
 }
 
-/// Run the initialisation chosen in `params`, then Levenberg–Marquardt; the graph's poses are replaced
-/// by the solution only when the solve succeeds.
-pub fn optimize(graph: &mut PoseGraph, params: &SolverParams) -> Result<SolveReport> {
-    params.robust_loss.validate()?;
+/// Where each edge's three blocks of `H` (`from,from`, `to,to`, `from,to`) are stored; `None` for a block
+/// that touches the fixed vertex.
+type EdgeSlots = [Option<BlockSlot<3>>; 3];
+
+fn edge_slots(edges: &[Edge], free: &[Option<usize>], system: &BlockSystem<3>) -> Vec<EdgeSlots> {
+    edges
+        .iter()
+        .map(|e| {
+            let (i, j) = (free[e.from], free[e.to]);
+            [
+                i.map(|i| system.slot(i, i)),
+                j.map(|j| system.slot(j, j)),
+                i.zip(j).map(|(i, j)| system.slot(i, j)),
+            ]
+        })
+        .collect()
+}
+
+/// Step 1, linearise and assemble: `H = Σ w JᵀΩJ` and `g = Σ w JᵀΩe` at `poses` (`w` the IRLS weight of
+/// a loop edge under the robust loss, 1 otherwise), into `system` and `gradient`. Returns `max|g|`.
+fn linearize_and_assemble(
+    edges: &[Edge],
+    poses: &[Pose2],
+    loss: &RobustLoss,
+    free: &[Option<usize>],
+    slots: &[EdgeSlots],
+    system: &mut BlockSystem<3>,
+    gradient: &mut [f64],
+) -> f64 {
+    system.clear();
+    gradient.fill(0.0);
+    for (e, [slot_ii, slot_jj, slot_ij]) in edges.iter().zip(slots) {
+        let (res, j_from, j_to) = linearize(&poses[e.from], &poses[e.to], &e.from_to);
+        let weight = match e.kind {
+            EdgeKind::Loop => loss.evaluate(quadratic_form(&e.information, &res)).1,
+            EdgeKind::Odometry => 1.0,
+        };
+        let jto_from = jt_omega(&j_from, &e.information, weight);
+        let jto_to = jt_omega(&j_to, &e.information, weight);
+        for (vertex, jto) in [(e.from, &jto_from), (e.to, &jto_to)] {
+            if let Some(b) = free[vertex] {
+                for r in 0..3 {
+                    gradient[3 * b + r] +=
+                        jto[r][0] * res[0] + jto[r][1] * res[1] + jto[r][2] * res[2];
+                }
+            }
+        }
+        if let Some(slot) = slot_ii {
+            system.add_at(slot, &mat3_mul(&jto_from, &j_from));
+        }
+        if let Some(slot) = slot_jj {
+            system.add_at(slot, &mat3_mul(&jto_to, &j_to));
+        }
+        if let Some(slot) = slot_ij {
+            system.add_at(slot, &mat3_mul(&jto_from, &j_to));
+        }
+    }
+    gradient.iter().fold(0.0f64, |m, g| m.max(g.abs()))
+}
+
+/// `x ⊞ δ`: poses moved by the step (additive in `(x, y, yaw)`, yaw wrapped); the fixed vertex stays.
+fn apply_step(poses: &[Pose2], free: &[Option<usize>], step: &[f64], out: &mut [Pose2]) {
+    for ((p, f), o) in poses.iter().zip(free).zip(out.iter_mut()) {
+        *o = match f {
+            Some(i) => Pose2::new(
+                p.x + step[3 * i],
+                p.y + step[3 * i + 1],
+                wrap_angle(p.yaw + step[3 * i + 2]),
+            ),
+            None => *p,
+        };
+    }
+}
+
+/// The λ schedule (see the module docs).
+struct Damping {
+    lambda: f64,
+    /// Growth factor of λ over consecutive rejections (Nielsen's ν).
+    nu: f64,
+    /// The least λ after a rejection: `fallback_lambda_scale · max diag(H)`.
+    fallback: f64,
+    /// λ shrinks by at most this factor per accepted step.
+    max_decrease: f64,
+}
+
+impl Damping {
+    fn new(params: &SolverParams, max_diagonal: f64) -> Self {
+        let scale = max_diagonal.max(1e-12);
+        Self {
+            lambda: params.initial_lambda_scale * scale,
+            nu: 2.0,
+            fallback: params.fallback_lambda_scale * scale,
+            max_decrease: params.max_lambda_decrease,
+        }
+    }
+
+    /// A step lowered the cost; `rho` is the ratio of actual to predicted decrease.
+    fn accept(&mut self, rho: f64) {
+        self.lambda *= (1.0 - (2.0 * rho - 1.0).powi(3)).max(1.0 / self.max_decrease);
+        self.nu = 2.0;
+    }
+
+    /// A step did not lower the cost (or `H + λI` was not numerically positive definite). Returns false
+    /// once λ has grown past any useful value.
+    fn reject(&mut self) -> bool {
+        self.lambda = (self.lambda * self.nu).max(self.fallback);
+        self.nu *= 2.0;
+        self.lambda.is_finite() && self.lambda <= 1e32
+    }
+}
+
+/// What step 3 decided.
+enum Verdict {
+    Continue { relinearize: bool },
+    Stop(Termination),
+}
+
+/// One solve's state: the poses, the linear system at them and every buffer, allocated once (the
+/// pattern, ordering and symbolic factorisation of `H`, the factor, `g`, `δ`, the candidate poses).
+struct Solver<'p> {
+    params: &'p SolverParams,
+    work: PoseGraph,
+    /// Free (non-fixed) index of every vertex.
+    free: Vec<Option<usize>>,
+    system: BlockSystem<3>,
+    /// Storage of each edge's blocks of `H`, looked up once.
+    slots: Vec<EdgeSlots>,
+    gradient: Vec<f64>,
+    step: Vec<f64>,
+    candidate: Vec<Pose2>,
+    /// `F` at `work.poses`.
+    cost: f64,
+    /// Set at the first linearisation (it scales with `H`).
+    damping: Option<Damping>,
+}
+
+impl<'p> Solver<'p> {
+    fn new(work: PoseGraph, cost: f64, params: &'p SolverParams) -> Result<Self> {
+        let free = free_indices(&work);
+        let n_free = work.len() - 1;
+        let pairs = work
+            .edges
+            .iter()
+            .filter_map(|e| Some((free[e.from]?, free[e.to]?)));
+        let system = BlockSystem::<3>::new(n_free, pairs)?;
+        Ok(Self {
+            params,
+            slots: edge_slots(&work.edges, &free, &system),
+            system,
+            free,
+            gradient: vec![0.0; 3 * n_free],
+            step: vec![0.0; 3 * n_free],
+            candidate: work.poses.clone(),
+            work,
+            cost,
+            damping: None,
+        })
+    }
+
+    /// Iterate steps 1–3; returns the number of iterations (factorisations) and why it stopped.
+    fn run(&mut self) -> (usize, Termination) {
+        let mut relinearize = true;
+        for iteration in 1..=self.params.max_iterations {
+            // 1. Linearise and assemble at the current poses (a rejected step keeps H and g).
+            if relinearize {
+                let max_gradient = linearize_and_assemble(
+                    &self.work.edges,
+                    &self.work.poses,
+                    &self.params.robust_loss,
+                    &self.free,
+                    &self.slots,
+                    &mut self.system,
+                    &mut self.gradient,
+                );
+                if max_gradient < self.params.gradient_tolerance {
+                    return (iteration - 1, Termination::GradientConverged);
+                }
+            }
+            let damping = self.damping.get_or_insert_with(|| {
+                let max_diagonal = self.system.diagonal().into_iter().fold(0.0f64, f64::max);
+                Damping::new(self.params, max_diagonal)
+            });
+
+            // 2. Damped step (H + λI) δ = −g, on the reused factorisation buffers.
+            for (s, g) in self.step.iter_mut().zip(&self.gradient) {
+                *s = -g;
+            }
+            if self
+                .system
+                .solve_damped(damping.lambda, &mut self.step)
+                .is_err()
+            {
+                // Not numerically positive definite at this λ: damp harder and retry.
+                if !damping.reject() {
+                    return (iteration, Termination::NoFurtherDecrease);
+                }
+                relinearize = false;
+                continue;
+            }
+
+            // 3. Accept the step if it lowers F, else reject it.
+            match self.accept_or_reject() {
+                Verdict::Continue { relinearize: again } => relinearize = again,
+                Verdict::Stop(termination) => return (iteration, termination),
+            }
+        }
+        (self.params.max_iterations, Termination::MaxIterations)
+    }
+
+    /// Step 3: evaluate `F` at `x ⊞ δ`; keep the step and shrink λ when `F` fell, else grow λ.
+    fn accept_or_reject(&mut self) -> Verdict {
+        let loss = &self.params.robust_loss;
+        let tolerance = self.params.relative_cost_tolerance;
+        let Some(damping) = self.damping.as_mut() else {
+            return Verdict::Stop(Termination::NoFurtherDecrease);
+        };
+        apply_step(
+            &self.work.poses,
+            &self.free,
+            &self.step,
+            &mut self.candidate,
+        );
+        let (new_cost, _) = objective(&self.work, &self.candidate, loss);
+        // Decrease of F predicted by the damped quadratic model: δᵀ(λδ − g).
+        let lambda = damping.lambda;
+        let predicted: f64 = self
+            .step
+            .iter()
+            .zip(&self.gradient)
+            .map(|(s, g)| s * (lambda * s - g))
+            .sum();
+        let actual = self.cost - new_cost;
+        let relative = actual / self.cost.max(f64::MIN_POSITIVE);
+        if actual > 0.0 && predicted > 0.0 {
+            std::mem::swap(&mut self.work.poses, &mut self.candidate);
+            self.cost = new_cost;
+            damping.accept(actual / predicted);
+            if relative < tolerance {
+                return Verdict::Stop(Termination::CostConverged);
+            }
+            return Verdict::Continue { relinearize: true };
+        }
+        // Rounding, not the model, decides the sign of a decrease this small: at the minimum already.
+        if predicted < tolerance * self.cost {
+            return Verdict::Stop(Termination::CostConverged);
+        }
+        if damping.reject() {
+            Verdict::Continue { relinearize: false }
+        } else {
+            Verdict::Stop(Termination::NoFurtherDecrease)
+        }
+    }
+}
+
+/// Check the inputs and return a copy of the graph at the initial estimate chosen in `params`.
+fn initial_estimate(graph: &PoseGraph, params: &SolverParams) -> Result<PoseGraph> {
+    params.validate()?;
     if graph.is_empty() {
         return Err(MapError::EmptyGraph);
     }
@@ -231,155 +553,55 @@ pub fn optimize(graph: &mut PoseGraph, params: &SolverParams) -> Result<SolveRep
         Initialization::Odometry => work.initialize_from_odometry()?,
         Initialization::Chordal => initialize_chordal(&mut work)?,
     }
-    let loss = params.robust_loss;
-    let (initial_cost, initial_chi2) = objective(&work, &work.poses, &loss);
-    let free = free_indices(&work);
-    let n_free = work.len() - 1;
-    if n_free == 0 || work.edges.is_empty() {
-        *graph = work;
-        return Ok(SolveReport {
-            iterations: 0,
-            initial_chi2,
-            final_chi2: initial_chi2,
-            final_cost: initial_cost,
-            converged: true,
-            termination: Termination::NothingToDo,
-            downweighted_loops: 0,
-        });
+    Ok(work)
+}
+
+/// Loop edges whose robust weight at the solution is below ½ (0 without a robust loss).
+fn downweighted_loops(graph: &PoseGraph, loss: &RobustLoss) -> usize {
+    if *loss == RobustLoss::None {
+        return 0;
     }
-    let pairs = work
+    graph
         .edges
         .iter()
-        .filter_map(|e| Some((free[e.from]?, free[e.to]?)));
-    let mut system = BlockSystem::<3>::new(n_free, pairs)?;
-    let mut gradient = vec![0.0; 3 * n_free];
-    let mut step = vec![0.0; 3 * n_free];
-    let mut candidate = work.poses.clone();
-    let mut cost = initial_cost;
-    let mut lambda = -1.0;
-    let mut nu = 2.0;
-    let mut iterations = 0;
-    let mut termination = Termination::MaxIterations;
-    let mut relinearize = true;
+        .filter(|e| {
+            e.kind == EdgeKind::Loop
+                && loss
+                    .evaluate(e.chi2(&graph.poses[e.from], &graph.poses[e.to]))
+                    .1
+                    < 0.5
+        })
+        .count()
+}
 
-    while iterations < params.max_iterations {
-        if relinearize {
-            system.clear();
-            gradient.fill(0.0);
-            for e in &work.edges {
-                let (res, j_from, j_to) =
-                    linearize(&work.poses[e.from], &work.poses[e.to], &e.from_to);
-                let weight = match e.kind {
-                    EdgeKind::Loop => {
-                        loss.evaluate(crate::graph::quadratic_form(&e.information, &res))
-                            .1
-                    }
-                    EdgeKind::Odometry => 1.0,
-                };
-                let blocks = [(free[e.from], &j_from), (free[e.to], &j_to)];
-                for (bi, ji) in blocks.iter() {
-                    let Some(bi) = *bi else { continue };
-                    let jto = jt_omega(ji, &e.information, weight);
-                    for r in 0..3 {
-                        gradient[3 * bi + r] +=
-                            jto[r][0] * res[0] + jto[r][1] * res[1] + jto[r][2] * res[2];
-                    }
-                    for (bj, jj) in blocks.iter() {
-                        let Some(bj) = *bj else { continue };
-                        if bi <= bj {
-                            system.add_block(bi, bj, &mat3_mul(&jto, jj));
-                        }
-                    }
-                }
-            }
-            let max_gradient = gradient.iter().fold(0.0f64, |m, g| m.max(g.abs()));
-            if max_gradient < params.gradient_tolerance {
-                termination = Termination::GradientConverged;
-                break;
-            }
-            if lambda < 0.0 {
-                let max_diag = system.diagonal().into_iter().fold(0.0f64, f64::max);
-                lambda = params.initial_lambda_scale * max_diag.max(1e-12);
-            }
-            relinearize = false;
-        }
-        iterations += 1;
-        for (s, g) in step.iter_mut().zip(&gradient) {
-            *s = -g;
-        }
-        let damping = vec![lambda; 3 * n_free];
-        if system.solve_damped(&damping, &mut step).is_err() {
-            // Numerically indefinite at this λ: damp harder and retry.
-            lambda *= nu;
-            nu *= 2.0;
-            continue;
-        }
-        for (v, f) in free.iter().enumerate() {
-            candidate[v] = match f {
-                Some(i) => {
-                    let p = work.poses[v];
-                    crate::se2::Pose2::new(
-                        p.x + step[3 * i],
-                        p.y + step[3 * i + 1],
-                        wrap_angle(p.yaw + step[3 * i + 2]),
-                    )
-                }
-                None => work.poses[v],
-            };
-        }
-        let (new_cost, _) = objective(&work, &candidate, &loss);
-        let predicted: f64 = step
-            .iter()
-            .zip(&gradient)
-            .map(|(s, g)| s * (lambda * s - g))
-            .sum();
-        let actual = cost - new_cost;
-        if actual > 0.0 && predicted > 0.0 {
-            let rho = actual / predicted;
-            std::mem::swap(&mut work.poses, &mut candidate);
-            let relative = actual / cost.max(f64::MIN_POSITIVE);
-            cost = new_cost;
-            lambda *= (1.0 - (2.0 * rho - 1.0).powi(3)).max(1.0 / 3.0);
-            nu = 2.0;
-            relinearize = true;
-            if relative < params.relative_cost_tolerance {
-                termination = Termination::CostConverged;
-                break;
-            }
-        } else {
-            lambda *= nu;
-            nu *= 2.0;
-            if !lambda.is_finite() || lambda > 1e32 {
-                termination = Termination::NoFurtherDecrease;
-                break;
-            }
-        }
-    }
-    let (final_cost, final_chi2) = objective(&work, &work.poses, &loss);
-    let downweighted_loops = if loss == RobustLoss::None {
-        0
+/// Run the initialisation chosen in `params`, then Gauss–Newton / Levenberg–Marquardt (see the module
+/// docs); the graph's poses are replaced by the solution only when the solve succeeds.
+pub fn optimize(graph: &mut PoseGraph, params: &SolverParams) -> Result<SolveReport> {
+    // Start: checked inputs, initial estimate on a copy.
+    let work = initial_estimate(graph, params)?;
+    let loss = params.robust_loss;
+    let (initial_cost, initial_chi2) = objective(&work, &work.poses, &loss);
+    let (iterations, termination, work) = if work.len() < 2 || work.edges.is_empty() {
+        (0, Termination::NothingToDo, work)
     } else {
-        work.edges
-            .iter()
-            .filter(|e| {
-                e.kind == EdgeKind::Loop
-                    && loss
-                        .evaluate(e.chi2(&work.poses[e.from], &work.poses[e.to]))
-                        .1
-                        < 0.5
-            })
-            .count()
+        // Set up once (ordering, symbolic factorisation, buffers), then iterate.
+        let mut solver = Solver::new(work, initial_cost, params)?;
+        let (iterations, termination) = solver.run();
+        (iterations, termination, solver.work)
     };
-    *graph = work;
-    Ok(SolveReport {
+    // Report and hand the solution back.
+    let (final_cost, final_chi2) = objective(&work, &work.poses, &loss);
+    let report = SolveReport {
         iterations,
         initial_chi2,
         final_chi2,
         final_cost,
         converged: termination != Termination::MaxIterations,
         termination,
-        downweighted_loops,
-    })
+        downweighted_loops: downweighted_loops(&work, &loss),
+    };
+    *graph = work;
+    Ok(report)
 }
 
 #[cfg(test)]
@@ -423,6 +645,71 @@ mod tests {
         let reference = edge.residual(&from, &to);
         for r in 0..3 {
             assert!((reference[r] - e0[r]).abs() < 1e-12);
+        }
+    }
+
+    #[test]
+    fn damping_starts_undamped_falls_back_on_a_failed_step_and_shrinks_back() {
+        let params = SolverParams::default();
+        let mut damping = Damping::new(&params, 1e4);
+        assert_eq!(damping.lambda, 0.0, "the first step is Gauss–Newton");
+        damping.accept(1.0);
+        assert_eq!(damping.lambda, 0.0, "good steps keep it Gauss–Newton");
+        assert!(damping.reject());
+        assert_eq!(damping.lambda, 1e-5 * 1e4, "a failed step falls back to LM");
+        assert!(damping.reject());
+        assert_eq!(
+            damping.lambda,
+            4e-5 * 1e4,
+            "repeated failures grow it ν-fold, ν doubling"
+        );
+        damping.accept(1.0);
+        assert!((damping.lambda - 4e-5 * 1e4 / params.max_lambda_decrease).abs() < 1e-12);
+        damping.accept(0.5);
+        let before = damping.lambda;
+        damping.accept(0.5);
+        assert_eq!(damping.lambda, before, "ρ = ½ leaves λ (Nielsen's rule)");
+        for _ in 0..60 {
+            if !damping.reject() {
+                return;
+            }
+        }
+        panic!("λ should exceed its bound after repeated failures");
+    }
+
+    #[test]
+    fn old_parameter_files_still_read_and_bad_schedules_are_refused() {
+        // A SolverParams serialised before the damping fields existed.
+        let old = r#"{"max_iterations": 30, "relative_cost_tolerance": 1e-10, "gradient_tolerance": 1e-9,
+            "initial_lambda_scale": 1e-5, "robust_loss": "None", "initialization": "Current"}"#;
+        let params: SolverParams = serde_json::from_str(old).unwrap();
+        assert_eq!(params.max_iterations, 30);
+        assert_eq!(params.initial_lambda_scale, 1e-5);
+        assert_eq!(
+            params.max_lambda_decrease,
+            SolverParams::default().max_lambda_decrease
+        );
+        assert!(params.validate().is_ok());
+        for bad in [
+            SolverParams {
+                initial_lambda_scale: -1.0,
+                ..Default::default()
+            },
+            SolverParams {
+                fallback_lambda_scale: 0.0,
+                ..Default::default()
+            },
+            SolverParams {
+                max_lambda_decrease: 0.5,
+                ..Default::default()
+            },
+            SolverParams {
+                relative_cost_tolerance: f64::NAN,
+                ..Default::default()
+            },
+        ] {
+            let err = bad.validate().unwrap_err();
+            assert!(matches!(err, MapError::InvalidParameter { .. }), "{err}");
         }
     }
 }

@@ -68,11 +68,19 @@ fn poses_array<'py>(
     flat.into_pyarray(py).reshape(vec![n, 3])
 }
 
+/// Solver settings that cross from Python; `None` keeps the Rust default.
+struct SolverOverrides {
+    relative_cost_tolerance: Option<f64>,
+    initial_lambda_scale: Option<f64>,
+    max_lambda_decrease: Option<f64>,
+}
+
 fn solver_params(
     initialization: &str,
     robust_loss: Option<&str>,
     robust_scale_chi2: f64,
     max_iterations: usize,
+    overrides: SolverOverrides,
 ) -> PyResult<SolverParams> {
     let initialization = match initialization {
         "current" => Initialization::Current,
@@ -98,11 +106,21 @@ fn solver_params(
             )))
         }
     };
+    let defaults = SolverParams::default();
     Ok(SolverParams {
         initialization,
         robust_loss,
         max_iterations,
-        ..SolverParams::default()
+        relative_cost_tolerance: overrides
+            .relative_cost_tolerance
+            .unwrap_or(defaults.relative_cost_tolerance),
+        initial_lambda_scale: overrides
+            .initial_lambda_scale
+            .unwrap_or(defaults.initial_lambda_scale),
+        max_lambda_decrease: overrides
+            .max_lambda_decrease
+            .unwrap_or(defaults.max_lambda_decrease),
+        ..defaults
     })
 }
 
@@ -300,6 +318,23 @@ impl PyPoseGraph {
         flat.into_pyarray(py).reshape([m, 2])
     }
 
+    /// `(E, 3)` measurements `i_from_j` `(x_m, y_m, yaw_rad)` of the edges.
+    fn measurements<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        poses_array(py, self.graph.edges.iter().map(|e| e.from_to))
+    }
+
+    /// `(E, 3, 3)` information matrices (order x, y, yaw) of the edges.
+    fn information<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
+        let flat: Vec<f64> = self
+            .graph
+            .edges
+            .iter()
+            .flat_map(|e| e.information.into_iter().flatten())
+            .collect();
+        let m = self.graph.edges.len();
+        flat.into_pyarray(py).reshape(vec![m, 3, 3])
+    }
+
     /// `(E,)` booleans: which edges are loop closures.
     fn is_loop<'py>(&self, py: Python<'py>) -> Bound<'py, numpy::PyArray1<bool>> {
         let v: Vec<bool> = self
@@ -316,8 +351,19 @@ impl PyPoseGraph {
         self.graph.chi2()
     }
 
-    /// Levenberg–Marquardt on faer's sparse Cholesky. Returns the report as a dict.
-    #[pyo3(signature = (initialization="chordal", robust_loss=None, robust_scale_chi2=1.0, max_iterations=100))]
+    /// Gauss–Newton first, Levenberg–Marquardt when a step fails, on faer's sparse Cholesky (see
+    /// `hippo_map::SolverParams` for the tolerances and the damping schedule; `None` keeps a default).
+    /// `max_iterations=0` only runs the initialisation. Returns the report as a dict.
+    #[pyo3(signature = (
+        initialization="chordal",
+        robust_loss=None,
+        robust_scale_chi2=1.0,
+        max_iterations=100,
+        relative_cost_tolerance=None,
+        initial_lambda_scale=None,
+        max_lambda_decrease=None,
+    ))]
+    #[allow(clippy::too_many_arguments)]
     fn optimize<'py>(
         &mut self,
         py: Python<'py>,
@@ -325,12 +371,20 @@ impl PyPoseGraph {
         robust_loss: Option<&str>,
         robust_scale_chi2: f64,
         max_iterations: usize,
+        relative_cost_tolerance: Option<f64>,
+        initial_lambda_scale: Option<f64>,
+        max_lambda_decrease: Option<f64>,
     ) -> PyResult<Bound<'py, PyDict>> {
         let params = solver_params(
             initialization,
             robust_loss,
             robust_scale_chi2,
             max_iterations,
+            SolverOverrides {
+                relative_cost_tolerance,
+                initial_lambda_scale,
+                max_lambda_decrease,
+            },
         )?;
         let graph = &mut self.graph;
         let r = py.detach(|| optimize(graph, &params)).map_err(to_py_err)?;
@@ -704,6 +758,11 @@ impl PyExperienceMap {
                 robust_loss,
                 robust_scale_chi2,
                 max_iterations,
+                SolverOverrides {
+                    relative_cost_tolerance: None,
+                    initial_lambda_scale: None,
+                    max_lambda_decrease: None,
+                },
             )?),
             "relaxation" => Corrector::Relaxation(RelaxationParams { gain, passes }),
             other => {
