@@ -235,7 +235,7 @@ def test_pose_graph_arrays_round_trip_and_solver_settings() -> None:
         initial_lambda_scale=1e-5,
         max_lambda_decrease=3.0,
     )
-    # Same optimum; the damped schedule before issue 11 needs more steps to get there.
+    # Same optimum; the earlier damped schedule needs more steps to get there.
     assert report["converged"] and before["converged"]
     assert report["final_chi2"] == pytest.approx(before["final_chi2"], rel=1e-9)
     assert report["iterations"] < before["iterations"]

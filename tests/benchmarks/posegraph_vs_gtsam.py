@@ -13,7 +13,7 @@ GTSAM. Graph construction is not timed. Both stop when an accepted step lowers t
 `--relative-tolerance` of it (GTSAM's `relativeErrorTol`; its absolute tolerance is set to 0); the gauge
 is vertex 0 (fixed in hippo_nav, a prior of σ = 1e-6 in GTSAM). Solvers:
 - `hippo`: the defaults (Gauss–Newton first, Levenberg–Marquardt when a step fails);
-- `hippo-nielsen` (with `--nielsen`): the schedule before issue 11, λ₀ = 10⁻⁵·max diag(H), shrinking at
+- `hippo-nielsen` (with `--nielsen`): the earlier damped schedule, λ₀ = 10⁻⁵·max diag(H), shrinking at
   most 3× per accepted step;
 - `gtsam`: `LevenbergMarquardtOptimizer` with its default parameters otherwise (λ₀ = 10⁻⁵, ×10 / ÷10,
   multifrontal Cholesky, COLAMD). Both are single-threaded (the PyPI wheel has no TBB).
@@ -183,7 +183,7 @@ def solve_hippo(
     arrays: Arrays, start: np.ndarray, tolerance: float, nielsen: bool
 ) -> tuple[float, dict[str, Any], np.ndarray]:
     graph = arrays.graph(start)
-    # The schedule before issue 11, or None: the defaults.
+    # The earlier damped schedule, or None: the defaults.
     initial_lambda_scale, max_lambda_decrease = (1e-5, 3.0) if nielsen else (None, None)
     began, began_cpu = time.perf_counter(), time.process_time()
     report = graph.optimize(
@@ -315,7 +315,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--starts", nargs="+", default=["chordal", "odometry"])
     parser.add_argument("--repeat", type=int, default=3)
     parser.add_argument("--relative-tolerance", type=float, default=1e-6)
-    parser.add_argument("--nielsen", action="store_true", help="also run the schedule before issue 11")
+    parser.add_argument("--nielsen", action="store_true", help="also run the earlier damped schedule")
     parser.add_argument("--json", type=Path, help="write every result here")
     args = parser.parse_args(argv)
     try:

@@ -1,5 +1,5 @@
 //! The damping schedule on synthetic grid worlds (Manhattan random walks with closures, as in the
-//! benchmark): Gauss–Newton first reaches the same optimum as the damped schedule before issue 11 in
+//! benchmark): Gauss–Newton first reaches the same optimum as the earlier damped schedule in
 //! a fraction of the iterations, also at 10⁵ vertices, where the damped schedule needed 15.
 mod common;
 

@@ -19,7 +19,7 @@ const REFERENCES: [(&str, f64); 5] = [
     ("kitti_05.g2o", 157.10),
 ];
 
-/// The schedule before issue 11: λ₀ = 10⁻⁵·max diag(H), shrinking at most 3× per accepted step.
+/// The earlier damped schedule: λ₀ = 10⁻⁵·max diag(H), shrinking at most 3× per accepted step.
 fn nielsen_schedule(initialization: Initialization) -> SolverParams {
     SolverParams {
         initialization,
