@@ -15,6 +15,25 @@ from pathlib import Path
 from typing import Any
 
 
+class _HelpFormatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
+    """Every option's help ends with its default: "(default: …)" from argparse, unless the help already says
+    what the default is (options whose default is None say it in words)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        help_text = action.help or ""
+        if "default" in help_text.lower() or action.default is argparse.SUPPRESS:
+            return help_text
+        if action.required:
+            return help_text + " (required)"
+        if action.default is None:
+            return help_text + " (default: none)"
+        if action.default is False and action.nargs == 0:
+            return help_text + " (default: off)"
+        if action.default == []:
+            return help_text + " (default: none)"
+        return super()._get_help_string(action) or help_text
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="hippo-nav", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
@@ -28,27 +47,35 @@ def build_parser() -> argparse.ArgumentParser:
         description="Stereo VO (or another system's odometry, replayed with --odometry), spatial-memory "
         "network, view cells and experience map on every frame; writes trajectories (KITTI and TUM), the "
         "map, metrics.json, the resolved config and figures into --out.",
+        formatter_class=_HelpFormatter,
     )
-    run.add_argument("--kitti", metavar="ROOT", help="KITTI odometry root (holds sequences/ and poses/)")
+    run.add_argument(
+        "--kitti",
+        metavar="ROOT",
+        help="KITTI odometry root (holds sequences/ and poses/) (default: none, the built-in synthetic demo loop)",
+    )
     run.add_argument(
         "--dataset",
         metavar="PATH",
         help="any stereo dataset, recognised by its layout: a KITTI root, an EuRoC/ASL sequence (holds mav0/), "
-        "a ROS 1 .bag file or ROS 2 bag folder, or a folder with left/, right/ and calibration.yaml",
+        "a ROS 1 .bag file or ROS 2 bag folder, or a folder with left/, right/ and calibration.yaml "
+        "(default: none)",
     )
     run.add_argument(
         "--dataset-kind",
         choices=["kitti", "euroc", "rosbag", "folder"],
         default=None,
-        help="read --dataset as this kind instead of detecting it",
+        help="read --dataset as this kind instead of detecting it (default: detected from the layout)",
     )
-    run.add_argument("--left-topic", metavar="TOPIC", help="ROS bag: left image topic (sensor_msgs/Image)")
-    run.add_argument("--right-topic", metavar="TOPIC", help="ROS bag: right image topic")
+    run.add_argument(
+        "--left-topic", metavar="TOPIC", help="ROS bag: left image topic (sensor_msgs/Image) (default: guessed)"
+    )
+    run.add_argument("--right-topic", metavar="TOPIC", help="ROS bag: right image topic (default: guessed)")
     run.add_argument(
         "--topics",
         metavar="YAML",
         help="ROS bag: YAML with left_topic, right_topic and the calibration (CameraInfo topics, or fx, fy, "
-        "cx, cy, baseline_m); flags win over it",
+        "cx, cy, baseline_m); flags win over it (default: none)",
     )
     run.add_argument(
         "--sequence",
@@ -56,11 +83,13 @@ def build_parser() -> argparse.ArgumentParser:
         help="KITTI sequence number (with --kitti, or --dataset on a KITTI root; default 00), or a sequence "
         "folder inside --dataset (EuRoC, stereo folder)",
     )
-    run.add_argument("--start", type=int, default=None, help="first frame")
-    run.add_argument("--stop", type=int, default=None, help="frame to stop before")
-    run.add_argument("--stride", type=int, default=1, help="use every n-th frame")
+    run.add_argument("--start", type=int, default=None, help="first frame (default: the sequence's first)")
+    run.add_argument("--stop", type=int, default=None, help="frame to stop before (default: run to the end)")
+    run.add_argument("--stride", type=int, default=1, help="use every n-th frame (default: 1)")
     run.add_argument(
-        "--config", metavar="JSON", help="pipeline config file (any subset of sections; the rest: defaults)"
+        "--config",
+        metavar="JSON",
+        help="pipeline config file (any subset of sections; the rest: defaults) (default: none, all defaults)",
     )
     run.add_argument(
         "--lesion",
@@ -75,7 +104,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument(
         "--odometry",
         metavar="FILE",
-        help="replay another system's trajectory (KITTI or TUM file) instead of the built-in stereo VO",
+        help="replay another system's trajectory (KITTI or TUM file) instead of the built-in stereo VO "
+        "(default: none, the built-in stereo VO)",
     )
     run.add_argument(
         "--odometry-format",
@@ -104,6 +134,28 @@ def build_parser() -> argparse.ArgumentParser:
         help="replace the results of an earlier run in --out (only the files a run writes are removed)",
     )
     run.add_argument("--no-progress", action="store_true", help="no progress bar")
+    run.add_argument(
+        "--rerun",
+        nargs="?",
+        const="",
+        default=None,
+        metavar="FILE.rrd",
+        help="log every frame to the Rerun viewer (camera and features, neural panels, decoded motion, the "
+        "map growing, stage timings): without FILE, spawn a viewer or connect to a running one; with FILE, "
+        "save a recording that `rerun FILE` opens later. Needs pip install 'hippo-nav[viewer]' (default: off)",
+    )
+    run.add_argument(
+        "--video",
+        action="store_true",
+        help="write mapping.mp4 into --out: camera, neural panels and the map growing (default: off)",
+    )
+    run.add_argument(
+        "--video-every",
+        type=int,
+        default=5,
+        metavar="N",
+        help="with --video, one video frame every N frames (and one after the final correction)",
+    )
 
     render = sub.add_parser(
         "render",
@@ -113,6 +165,7 @@ def build_parser() -> argparse.ArgumentParser:
         "The camera keeps a fixed height above the road, so every pass sees a street the same way. "
         "Resumable: frames already written are kept. Run it afterwards with "
         "`hippo-nav run --kitti OUT --sequence NN`.",
+        formatter_class=_HelpFormatter,
     )
     render.add_argument("--kitti", metavar="ROOT", required=True, help="KITTI root with poses/NN.txt")
     render.add_argument("--sequence", required=True, help="sequence number, e.g. 00")
@@ -126,7 +179,12 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--workers", type=int, default=2, help="rendering threads (default 2)")
     render.add_argument("--no-progress", action="store_true", help="no progress bar")
 
-    figures = sub.add_parser("figures", help="write the paper's theory figures as PNG files")
+    figures = sub.add_parser(
+        "figures",
+        help="write the paper's theory figures as PNG files",
+        description="Writes the paper's theory figures (the 1-D theory of multi-resolution grid codes) as PNG files.",
+        formatter_class=_HelpFormatter,
+    )
     figures.add_argument("--out", default="runs/figures", help="folder for the PNG files")
     return parser
 
@@ -174,20 +232,26 @@ def _run(args: argparse.Namespace) -> int:
         config = config.model_copy(update={"seed": args.seed})
     if args.no_figures:
         config = config.model_copy(update={"output": config.output.model_copy(update={"figures": False})})
-    result = run(
-        args.out,
-        kitti=args.kitti or args.dataset,
-        sequence=sequence,
-        start=args.start,
-        stop=args.stop,
-        stride=args.stride,
-        config=config,
-        progress=not args.no_progress,
-        odometry=odometry,
-        overwrite=args.overwrite,
-        dataset_kind=kind if args.dataset is not None else None,
-        dataset_options=options,
-    )
+    observers = _observers(args)  # before any frame: a missing viewer extra is reported at once
+    try:
+        result = run(
+            args.out,
+            kitti=args.kitti or args.dataset,
+            sequence=sequence,
+            start=args.start,
+            stop=args.stop,
+            stride=args.stride,
+            config=config,
+            progress=not args.no_progress,
+            odometry=odometry,
+            overwrite=args.overwrite,
+            dataset_kind=kind if args.dataset is not None else None,
+            dataset_options=options,
+            observers=observers,
+        )
+    finally:
+        for observer in observers:
+            observer.close()
     print(json.dumps(_summary(result.metrics), indent=2))
     # The paper's bump table (μ, σ of every grid bump, fused, place) at the last snapshot frame only;
     # bump_table.csv in --out holds every snapshot frame.
@@ -200,6 +264,10 @@ def _run(args: argparse.Namespace) -> int:
         print(f"interrupted after {result.metrics['frames']} frames; results so far written to {args.out}")
         return _SIGNAL_EXIT.get(result.metrics.get("interrupted_by", "SIGINT"), 130)
     print(f"results written to {args.out}")
+    if args.video:
+        print(f"video written to {Path(args.out) / 'mapping.mp4'}")
+    if args.rerun and not args.rerun.startswith("rerun"):
+        print(f"rerun recording written to {args.rerun}; open it with: rerun {args.rerun}")
     return 0
 
 
@@ -227,6 +295,27 @@ def _dataset_input(args: argparse.Namespace) -> tuple[str | None, dict[str, Any]
     if args.topics is not None and not Path(args.topics).is_file():
         raise HippoNavError(f"--topics {args.topics}: no such file (a YAML with left_topic, right_topic, …)")
     return kind, options
+
+
+def _observers(args: argparse.Namespace) -> list[Any]:
+    """The viewers asked for: `--rerun [FILE]` and `--video` (mapping.mp4 in --out)."""
+    from hippo_nav import HippoNavError
+
+    observers: list[Any] = []
+    if args.video_every < 1:
+        raise HippoNavError(f"--video-every {args.video_every}: give a positive number of frames")
+    if args.rerun is not None:
+        from hippo_nav.viewer.rerun import RerunObserver
+
+        target = args.rerun or None
+        if target is not None and not str(target).startswith("rerun") and Path(target).suffix != ".rrd":
+            raise HippoNavError(f"--rerun {target}: give a recording file ending in .rrd (or no file for a live viewer)")
+        observers.append(RerunObserver(target))
+    if args.video:
+        from hippo_nav.viewer.video import VideoObserver
+
+        observers.append(VideoObserver(Path(args.out) / "mapping.mp4", every=args.video_every))
+    return observers
 
 
 def _replay(args: argparse.Namespace) -> Callable[[Any], Any] | None:

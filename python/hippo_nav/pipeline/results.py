@@ -60,7 +60,7 @@ log = logging.getLogger("hippo_nav.pipeline")
 
 RESULT_FILES = (
     "config.json", "frames.csv", "bump_table.csv", "map.bin", "map.g2o", "metrics.json",
-    "cognitive_map.png", "rate_maps.png",
+    "cognitive_map.png", "rate_maps.png", "mapping.mp4",
 )  # fmt: skip
 RESULT_PATTERNS = ("trajectory_*.kitti.txt", "trajectory_*.tum.txt", "ground_truth.*.txt", "neural_state_*.png")
 """What a run writes into its results folder (and what `--overwrite` clears, nothing else)."""
