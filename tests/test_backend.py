@@ -107,7 +107,9 @@ def test_a_closure_measures_a_known_offset():
     def keyframe(pose):
         return extract(world.render(pose, K, size), world.render(pose @ right, K, size))
 
-    measurement, why = LoopMeasurer(Calibration, ClosureConfig()).measure(keyframe(key_pose), keyframe(now_pose))
+    measurement, why = LoopMeasurer(Calibration, ClosureConfig()).measure(
+        keyframe(key_pose), keyframe(now_pose)
+    )
     assert why == "ok" and measurement is not None
     truth = se2_between(planar_from_pose(now_pose), planar_from_pose(key_pose))
     error = np.asarray(measurement.agent_from_target) - truth
@@ -117,7 +119,9 @@ def test_a_closure_measures_a_known_offset():
     assert (np.abs(error) < 3 * sigma).all() and sigma[0] < 0.5, (error, sigma)
     # A different place of the same world is not a closure.
     elsewhere = planar_poses([55.0], [0.0], [0.0])[0]
-    assert LoopMeasurer(Calibration, ClosureConfig()).measure(keyframe(key_pose), keyframe(elsewhere))[0] is None
+    assert (
+        LoopMeasurer(Calibration, ClosureConfig()).measure(keyframe(key_pose), keyframe(elsewhere))[0] is None
+    )
 
 
 def test_a_look_alike_place_elsewhere_is_refused(street, tmp_path):

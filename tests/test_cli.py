@@ -79,10 +79,10 @@ def test_ctrl_c_exits_130_and_keeps_the_frames_processed(tmp_path, monkeypatch, 
 
     real = Pipeline._process
 
-    def interrupted_at_frame_5(self, i):
-        if i == 5:
+    def interrupted_at_frame_5(self, front):
+        if len(self.record) == 5:
             raise KeyboardInterrupt
-        return real(self, i)
+        return real(self, front)
 
     monkeypatch.setattr(Pipeline, "_process", interrupted_at_frame_5)
     out = tmp_path / "partial"

@@ -116,7 +116,15 @@ def test_a_short_run_is_deterministic_and_writes_every_result(demo, tmp_path):
     assert load_config(out / "config.json") == config.model_validate(resolved)
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["frames"] == 25 and not metrics["interrupted"]
-    assert set(metrics["timing"]["per_frame_ms"]) == {"load", "vo", "views", "engine", "closure", "map", "record"}
+    assert set(metrics["timing"]["per_frame_ms"]) == {
+        "load",
+        "vo",
+        "views",
+        "engine",
+        "closure",
+        "map",
+        "record",
+    }
     assert (out / "bump_table.csv").read_text().count("\n") > 5
     assert (out / "map.bin").stat().st_size > 0 and (out / "frames.csv").read_text().count("\n") == 26
 

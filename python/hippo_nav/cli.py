@@ -68,7 +68,9 @@ def build_parser() -> argparse.ArgumentParser:
         help="read --dataset as this kind instead of detecting it (default: detected from the layout)",
     )
     run.add_argument(
-        "--left-topic", metavar="TOPIC", help="ROS bag: left image topic (sensor_msgs/Image) (default: guessed)"
+        "--left-topic",
+        metavar="TOPIC",
+        help="ROS bag: left image topic (sensor_msgs/Image) (default: guessed)",
     )
     run.add_argument("--right-topic", metavar="TOPIC", help="ROS bag: right image topic (default: guessed)")
     run.add_argument(
@@ -173,7 +175,10 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--stop", type=int, default=None, help="frame to stop before (default: all)")
     render.add_argument("--out", required=True, help="KITTI root to write (created if missing)")
     render.add_argument(
-        "--size", default="320x96", metavar="WxH", help="image size in pixels (default 320x96, KITTI's aspect)"
+        "--size",
+        default="320x96",
+        metavar="WxH",
+        help="image size in pixels (default 320x96, KITTI's aspect)",
     )
     render.add_argument("--seed", type=int, default=0, help="texture seed of the synthetic world (default 0)")
     render.add_argument("--workers", type=int, default=2, help="rendering threads (default 2)")
@@ -309,7 +314,9 @@ def _observers(args: argparse.Namespace) -> list[Any]:
 
         target = args.rerun or None
         if target is not None and not str(target).startswith("rerun") and Path(target).suffix != ".rrd":
-            raise HippoNavError(f"--rerun {target}: give a recording file ending in .rrd (or no file for a live viewer)")
+            raise HippoNavError(
+                f"--rerun {target}: give a recording file ending in .rrd (or no file for a live viewer)"
+            )
         observers.append(RerunObserver(target))
     if args.video:
         from hippo_nav.viewer.video import VideoObserver

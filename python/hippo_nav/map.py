@@ -40,7 +40,6 @@ __all__ = [
 ]
 
 
-
 class AmbiguityPolicy(str, Enum):
     """What to do when several vertices match a frame (RatSLAM closure)."""
 

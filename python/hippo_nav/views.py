@@ -33,9 +33,11 @@ from hippo_nav._defaults import rust_default
 
 __all__ = ["ViewCellConfig", "ViewCells", "ViewObservation", "field_of_view_rad"]
 
+
 def _default(name: str) -> Any:
     # The Rust defaults are the single source; this model only names and types them.
     return rust_default("views", name)
+
 
 # Noise floor of the patch standard deviation, in 8-bit grey levels.
 _NOISE_FLOOR_GREY = 5.0

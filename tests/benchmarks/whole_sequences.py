@@ -34,7 +34,10 @@ PUBLISHED = {  # Hybrid-NeuroSLAM's table (ATE, m): VO alone, + RatSLAM, + Neuro
     "05": (2.37, 6.57, 3.81),
     "08": (7.35, 6.86, 6.85),
 }
-RATSLAM = {"map": {"closure": "RatSlam", "online_correction": "Relaxation"}, "correction": {"method": "relaxation"}}
+RATSLAM = {
+    "map": {"closure": "RatSlam", "online_correction": "Relaxation"},
+    "correction": {"method": "relaxation"},
+}
 
 
 def odometry_for(variant: str, sequence: str, render_root: Path, kitti: Path, work: Path):
@@ -65,7 +68,9 @@ def published_protocol_check(kitti: Path) -> dict[str, dict[str, float]]:
     out = {}
     for sequence, (name, _) in ORB_FILES.items():
         gt = read_kitti_poses(kitti / "poses" / f"{sequence}.txt")
-        orb = read_kitti_poses(kitti / ".." / "peer_trajectories" / "hybrid_neuroslam_orbslam3" / name)[: len(gt)]
+        orb = read_kitti_poses(kitti / ".." / "peer_trajectories" / "hybrid_neuroslam_orbslam3" / name)[
+            : len(gt)
+        ]
         out[sequence] = {
             "ate_2d_m": ate_rmse(gt, orb, planar=True, align="se3"),
             "ate_3d_m": ate_rmse(gt, orb, planar=False, align="se3"),
@@ -117,8 +122,12 @@ def table(rows: list[tuple[str, str, dict]]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--kitti", type=Path, required=True, help="KITTI root with poses/ and sequences/*/times.txt")
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument(
+        "--kitti", type=Path, required=True, help="KITTI root with poses/ and sequences/*/times.txt"
+    )
     parser.add_argument("--renders", type=Path, required=True, help="KITTI root the renders go to")
     parser.add_argument("--out", type=Path, required=True, help="folder for the runs and the table")
     parser.add_argument("--sequences", nargs="+", default=["00", "02", "05", "06", "08"])

@@ -53,14 +53,20 @@ class HdConfig(_Section):
 
     n_theta: int = Field(_d("hd", "n_theta"), description="units around the ring (Nθ)")
     n_nu: int = Field(_d("hd", "n_nu"), description="units along the angular-velocity axis (Nν)")
-    nu_max: float = Field(_d("hd", "nu_max"), description="half-range L_r of the velocity axis (neural units)")
+    nu_max: float = Field(
+        _d("hd", "nu_max"), description="half-range L_r of the velocity axis (neural units)"
+    )
     lambda_: float = Field(_d("hd", "lambda"), alias="lambda", description="velocity tuning spread λ")
     j0: float = Field(_d("hd", "j0"), description="uniform inhibition J0 ≤ 0")
     j1: float = Field(_d("hd", "j1"), description="interaction strength J1 > 0")
     input_amp: float = Field(_d("hd", "input_amp"), description="velocity input amplitude I_r")
-    input_tuning: float = Field(_d("hd", "input_tuning"), description="velocity tuning strength ε_r in [0, 1]")
+    input_tuning: float = Field(
+        _d("hd", "input_tuning"), description="velocity tuning strength ε_r in [0, 1]"
+    )
     input_sigma: float = Field(_d("hd", "input_sigma"), description="velocity tuning width σ_r")
-    pin_gain: float = Field(_d("hd", "pin_gain"), description="velocity-pinning gain (0 = the paper's plain model)")
+    pin_gain: float = Field(
+        _d("hd", "pin_gain"), description="velocity-pinning gain (0 = the paper's plain model)"
+    )
 
 
 class GridConfig(_Section):
@@ -98,7 +104,9 @@ class EngineConfig(_Section):
 
     tau_s: float = Field(_d("tau_s"), description="membrane time constant τ (s)")
     max_substep_s: float = Field(_d("max_substep_s"), description="longest integration sub-step (s)")
-    torus_period_m: float = Field(_d("torus_period_m"), description="side of the square the torus stands for (m)")
+    torus_period_m: float = Field(
+        _d("torus_period_m"), description="side of the square the torus stands for (m)"
+    )
     hd: HdConfig = Field(default_factory=HdConfig)
     grid: list[GridConfig] = Field(default_factory=_default_grid, min_length=N_MODULES, max_length=N_MODULES)
     place: PlaceConfig = Field(default_factory=PlaceConfig)

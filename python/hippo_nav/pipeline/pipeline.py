@@ -39,8 +39,10 @@ import signal
 import threading
 import time
 from collections.abc import Sequence
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, Self
 
 import numpy as np
 
@@ -118,7 +120,9 @@ class Pipeline:
         rng = np.random.default_rng(self.config.seed)
         self.initial_heading_rad = float(rng.uniform(-np.pi, np.pi))
         initial_phase_rad = rng.uniform(0.0, 2 * np.pi, size=2)
-        self.engine.reset(self.initial_heading_rad, (float(initial_phase_rad[0]), float(initial_phase_rad[1])))
+        self.engine.reset(
+            self.initial_heading_rad, (float(initial_phase_rad[0]), float(initial_phase_rad[1]))
+        )
         # Front-end parts can be given (e.g. another VO in a notebook); by default they come from the config.
         self.odometry: Odometry = (
             odometry if odometry is not None else make_odometry(dataset.calibration, self.config.vo)
@@ -174,11 +178,12 @@ class Pipeline:
             log.warning("%s", warning)
         interrupted = False
         stopped_by: DatasetError | None = None
-        with _stop_on_signals() as caught, _progress(self) as bar:
+        started = time.perf_counter()
+        with _stop_on_signals() as caught, _progress(self) as bar, _FrontEnd(self) as front:
             try:
                 loops = 0
                 for i in range(len(self.dataset)):
-                    self._process(i)
+                    self._process(front.get(i))
                     if bar is not None:
                         loops += self.record.frames[-1].loop_closure is not None
                         bar.update()
@@ -199,6 +204,7 @@ class Pipeline:
                 if len(self.record) == 0:
                     raise
                 interrupted, stopped_by = True, err
+        self.record.wall_s = time.perf_counter() - started
         self._snapshot(len(self.record) - 1, final=True)
         interrupted_by = caught.get("signal", "SIGINT") if interrupted and stopped_by is None else None
         result = self._finish(
@@ -220,20 +226,27 @@ class Pipeline:
         return str(getattr(self.dataset, "name", "sequence"))
 
     # ----------------------------------------------------------------------------------------------
-    def _process(self, i: int) -> None:
+    def _front(self, i: int) -> _FrontResult:
+        """Load frame `i` and measure its odometry step (the part that runs a frame ahead, see `_FrontEnd`)."""
         clock = time.perf_counter()
         frame = self.dataset[i]
-        clock = self._lap("load", clock)
+        loaded = time.perf_counter()
+        step, vo_status = self._odometry_step(frame)
+        return _FrontResult(frame, step, vo_status, loaded - clock, time.perf_counter() - loaded)
+
+    def _process(self, front: _FrontResult) -> None:
+        frame, step, vo_status = front.frame, front.step, front.vo_status
+        self.record.stage_s["load"].append(front.load_s)
+        self.record.stage_s["vo"].append(front.vo_s)
+        clock = time.perf_counter()
 
         # 1. Odometry → the 3-D pose, the planar step of the map, dt.
-        step, vo_status = self._odometry_step(frame)
         previous_planar = planar_from_pose(self._vo_pose)
         self._vo_pose = self._vo_pose @ step
         planar = se2_between(previous_planar, planar_from_pose(self._vo_pose))
         dt_s = 0.0 if self._last_timestamp_s is None else float(frame.timestamp_s - self._last_timestamp_s)
         self._last_timestamp_s = float(frame.timestamp_s)
         data_flags = self._data_flags(frame, dt_s)
-        clock = self._lap("vo", clock)
 
         # 2. Local view cells: which view, and what (if anything) it injects.
         obs = self._observe_view(frame.left, planar)
@@ -276,7 +289,19 @@ class Pipeline:
         clock = self._lap("map", clock)
 
         self._record(
-            frame, step, vo_status, flag, yaw_rate, speed, obs, strength, readout, code, outcome, note, data_flags
+            frame,
+            step,
+            vo_status,
+            flag,
+            yaw_rate,
+            speed,
+            obs,
+            strength,
+            readout,
+            code,
+            outcome,
+            note,
+            data_flags,
         )
         for observer in self.observers:
             observer.on_frame(self, frame, self.record.frames[-1], readout)
@@ -328,7 +353,9 @@ class Pipeline:
         if not cfg.near_only or len(self.map) == 0:
             return None
         radius_m = min(self.map.loop_gate()[0] + cfg.radius_margin_m, cfg.max_radius_m)
-        cells = [c for v in self.map.vertices_near(radius_m, tuple(planar)) for c in self._vertex_cells.get(v, ())]
+        cells = [
+            c for v in self.map.vertices_near(radius_m, tuple(planar)) for c in self._vertex_cells.get(v, ())
+        ]
         n = len(self.views)
         cells.extend(range(max(n - cfg.recent_cells, 0), n))
         return cells
@@ -438,7 +465,20 @@ class Pipeline:
 
     # ----------------------------------------------------------------------------------------------
     def _record(
-        self, frame, step, vo_status, flag, yaw_rate, speed, obs, strength, readout, code, outcome, note, data_flags
+        self,
+        frame,
+        step,
+        vo_status,
+        flag,
+        yaw_rate,
+        speed,
+        obs,
+        strength,
+        readout,
+        code,
+        outcome,
+        note,
+        data_flags,
     ) -> None:
         agent = outcome.world_from_agent
         offset = outcome.vertex_from_agent
@@ -581,6 +621,58 @@ class Pipeline:
             frontend = resolved_frontend_params(self.odometry, self.views)
             write_results(result, Path(out_dir), self.config, frontend, self.map)
         return result
+
+
+@dataclass(frozen=True)
+class _FrontResult:
+    """A loaded frame and its odometry step, with the time each took."""
+
+    frame: StereoFrame
+    step: np.ndarray
+    vo_status: str
+    load_s: float
+    vo_s: float
+
+
+class _FrontEnd:
+    """Loads frames and measures their odometry one frame ahead of the back end, on one worker thread.
+
+    The odometry only looks at images, never at the networks or the map, so frame k+1's image loading
+    and VO (OpenCV releases the interpreter) can run while the networks and the map (Rust, also without
+    the interpreter) process frame k: on two cores the two halves overlap. One worker keeps the VO's
+    frames in order, so the results do not depend on it; `config.overlap_front_end = false` runs
+    everything on the calling thread. An error of frame k+1 (a corrupt image) surfaces when the back end
+    asks for frame k+1, after frame k is done, as without the overlap."""
+
+    def __init__(self, pipeline: Pipeline) -> None:
+        self._pipeline = pipeline
+        self._overlap = pipeline.config.overlap_front_end
+        self._pool: ThreadPoolExecutor | None = None
+        self._next: tuple[int, Future[_FrontResult]] | None = None
+
+    def __enter__(self) -> Self:
+        if self._overlap:
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hippo-nav-front")
+        return self
+
+    def get(self, i: int) -> _FrontResult:
+        """Frame `i`'s front-end result; starts frame i+1's."""
+        if self._pool is None:
+            return self._pipeline._front(i)
+        if self._next is not None and self._next[0] == i:
+            result = self._next[1].result()
+        else:
+            result = self._pool.submit(self._pipeline._front, i).result()
+        if i + 1 < len(self._pipeline.dataset):
+            self._next = (i + 1, self._pool.submit(self._pipeline._front, i + 1))
+        else:
+            self._next = None
+        return result
+
+    def __exit__(self, *exc: object) -> None:
+        if self._pool is not None:
+            # Wait for a frame in flight (a few ms) so nothing touches the VO after the run.
+            self._pool.shutdown(wait=True, cancel_futures=True)
 
 
 @contextlib.contextmanager

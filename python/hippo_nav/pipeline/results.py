@@ -62,7 +62,12 @@ RESULT_FILES = (
     "config.json", "frames.csv", "bump_table.csv", "map.bin", "map.g2o", "metrics.json",
     "cognitive_map.png", "rate_maps.png", "mapping.mp4",
 )  # fmt: skip
-RESULT_PATTERNS = ("trajectory_*.kitti.txt", "trajectory_*.tum.txt", "ground_truth.*.txt", "neural_state_*.png")
+RESULT_PATTERNS = (
+    "trajectory_*.kitti.txt",
+    "trajectory_*.tum.txt",
+    "ground_truth.*.txt",
+    "neural_state_*.png",
+)
 """What a run writes into its results folder (and what `--overwrite` clears, nothing else)."""
 
 CLOSURE_TRUE_M = 5.0
@@ -91,7 +96,9 @@ def prepare_results_folder(out: str | Path, overwrite: bool = False) -> Path:
         with tempfile.NamedTemporaryFile(dir=path, prefix=".write-check-"):
             pass
     except OSError as err:
-        raise HippoNavError(f"results folder {path} is not writable ({err.strerror}); choose another --out") from None
+        raise HippoNavError(
+            f"results folder {path} is not writable ({err.strerror}); choose another --out"
+        ) from None
     present = sorted(p.name for p in path.iterdir())
     if present and not overwrite:
         shown = ", ".join(present[:4]) + (", …" if len(present) > 4 else "")
@@ -165,9 +172,7 @@ def trajectory_errors(gt: np.ndarray, estimates: dict[str, np.ndarray]) -> dict[
     return out
 
 
-def closure_quality(
-    gt: np.ndarray, record: RunRecord, min_separation_m: float
-) -> dict[str, Any]:
+def closure_quality(gt: np.ndarray, record: RunRecord, min_separation_m: float) -> dict[str, Any]:
     """Precision and recall of the run's loop closures against ground truth (module doc)."""
     positions = gt[:, :3, 3]
     path_m = trajectory_distances_m(gt)
@@ -223,12 +228,18 @@ def timing(record: RunRecord) -> dict[str, Any]:
 
     return {
         "frames": n,
+        "wall_s": record.wall_s,
         "per_frame_ms": {s: 1e3 * v / max(n, 1) for s, v in per_stage.items()},
         "first_frames_ms": ms(slice(0, window)),
         "last_frames_ms": ms(slice(n - window, n)),
         "window_frames": window,
         "share_of_frame": {s: v / frame_total if frame_total > 0 else None for s, v in per_stage.items()},
-        "frames_per_s": n / frame_total if frame_total > 0 else None,
+        # Throughput: frames over the loop's wall time (the front end runs a frame ahead, so this beats
+        # the stages' sum); `frames_per_s_sequential` is what the stages would give one after another.
+        "frames_per_s": n / record.wall_s
+        if record.wall_s > 0
+        else (n / frame_total if frame_total else None),
+        "frames_per_s_sequential": n / frame_total if frame_total > 0 else None,
         "frames_per_s_without_image_loading": n / (frame_total - per_stage["load"])
         if frame_total > per_stage["load"]
         else None,
@@ -236,7 +247,9 @@ def timing(record: RunRecord) -> dict[str, Any]:
     }
 
 
-def evaluate(pipeline: Pipeline, result: RunResult, correction: dict[str, Any], stopped_by: str | None) -> dict:
+def evaluate(
+    pipeline: Pipeline, result: RunResult, correction: dict[str, Any], stopped_by: str | None
+) -> dict:
     """The run's metrics (sizes, closures, timing, and with ground truth the trajectory errors)."""
     record = result.record
     n = len(record)
@@ -270,7 +283,9 @@ def evaluate(pipeline: Pipeline, result: RunResult, correction: dict[str, Any], 
         "keyframes": len(pipeline.keyframes),
         "keyframe_bytes": int(sum(k.nbytes for k in pipeline.keyframes.values())),
         "loop_closures": int(sum(c is not None for c in closures)),
-        "loop_closure_frames": [record.frames[p].frame_index for p, c in enumerate(closures) if c is not None],
+        "loop_closure_frames": [
+            record.frames[p].frame_index for p, c in enumerate(closures) if c is not None
+        ],
         "closure_attempts": dict(sorted(attempts.items())),
         "vo_status_counts": dict(sorted(vo_statuses.items())),
         "motion_flags": int(sum(f != "ok" for f in record.column("motion_flag"))),
