@@ -524,7 +524,7 @@ class Pipeline:
                 robust_scale_chi2=cfg.robust_scale_chi2,
                 max_iterations=cfg.max_iterations,
             )
-        return {"method": cfg.method, **dict(report)}
+        return {"method": cfg.method, **report.as_dict()}
 
     def _finish(
         self,
