@@ -10,7 +10,19 @@ import hippo_nav
 import numpy as np
 import pytest
 from hippo_nav import _core
-from hippo_nav.engine import CompactView, EngineConfig, SpatialMemory, ViewPatterns, find_bumps, fuse_modules
+from hippo_nav.engine import (
+    MODULE_NAMES,
+    N_MODULES,
+    Bump,
+    CompactView,
+    EngineConfig,
+    ModuleReadout,
+    SpatialMemory,
+    SpatialReadout,
+    ViewPatterns,
+    find_bumps,
+    fuse_modules,
+)
 
 
 @pytest.fixture(scope="module")
@@ -37,6 +49,24 @@ def test_every_module_has_its_bumps_and_the_place_code_one(settled: SpatialMemor
     # Finer modules have narrower bumps, and the fused estimate is narrower than any module.
     widths = [m.bumps[0].width_rad for m in r.modules]
     assert widths[0] > widths[1] > widths[2] > r.fused.width_rad
+
+
+def test_readouts_are_frozen_typed_objects_built_in_rust(settled: SpatialMemory):
+    r = settled.readout()
+    assert isinstance(r, SpatialReadout) and type(r) is _core.SpatialReadout
+    assert N_MODULES == _core.N_MODULES == len(MODULE_NAMES) == len(r.modules) == len(settled.config.grid)
+    module = r.modules[0]
+    assert isinstance(module, ModuleReadout) and isinstance(module.bumps, tuple)
+    assert isinstance(module.bumps[0], Bump) and isinstance(r.place, Bump)
+    assert isinstance(r.time_s, float) and isinstance(r.substeps, int) and isinstance(module.k, int)
+    assert isinstance(r.place_position_m, tuple) and len(module.tracked_rad) == 2
+    for obj, name in ((r, "heading_rad"), (r, "modules"), (module, "bumps"), (r.place, "mean_rad")):
+        with pytest.raises(AttributeError):
+            setattr(obj, name, None)
+    assert r == settled.readout() and r.modules[1] == settled.readout().modules[1]
+    assert "SpatialReadout(" in repr(r) and "Bump(" in repr(r.place)
+    b = Bump((1.0, 2.0), (0.2, 0.4))
+    assert b.mass == 1.0 and b.width_rad == pytest.approx(0.3) and b == Bump((1.0, 2.0), (0.2, 0.4), 1.0)
 
 
 def test_activity_arrays_have_documented_shapes(settled: SpatialMemory):
@@ -132,7 +162,7 @@ def test_view_injection_accepts_non_contiguous_arrays_and_pulls_back():
 
 def test_float64_engine_agrees_with_float32():
     cfg = EngineConfig.model_validate(
-        {"grid": [{"n_theta": 32, "n_nu": 5}] * 3, "place": {"n_theta": 32}, "hd": {"n_theta": 64}}
+        {"grid": [{"n_theta": 32, "n_nu": 5}] * N_MODULES, "place": {"n_theta": 32}, "hd": {"n_theta": 64}}
     )
     a, b = SpatialMemory(cfg, "float32"), SpatialMemory(cfg, "float64")
     for _ in range(20):
@@ -142,7 +172,9 @@ def test_float64_engine_agrees_with_float32():
 
 
 def test_state_round_trip_resumes_identically():
-    cfg = EngineConfig.model_validate({"grid": [{"n_theta": 32, "n_nu": 5}] * 3, "place": {"n_theta": 32}})
+    cfg = EngineConfig.model_validate(
+        {"grid": [{"n_theta": 32, "n_nu": 5}] * N_MODULES, "place": {"n_theta": 32}}
+    )
     a = SpatialMemory(cfg)
     a.step(0.3, 10.0, 0.1)
     b = SpatialMemory(cfg)
@@ -325,6 +357,6 @@ def test_compact_view_codes_round_trip_lesions_and_heading_offset():
     with pytest.raises(hippo_nav.HippoNavError, match="square array"):
         CompactView.from_patterns(ViewPatterns(good.hd_profile, [np.zeros((64, 63)), None, None]), [1, 2, 4])
     with pytest.raises(hippo_nav.HippoNavError, match="HD profile"):
-        CompactView.from_patterns(ViewPatterns(np.full(128, np.nan), [None] * 3), [1, 2, 4])
+        CompactView.from_patterns(ViewPatterns(np.full(128, np.nan), [None] * N_MODULES), [1, 2, 4])
     with pytest.raises(hippo_nav.HippoNavError, match="module index 3"):
         view.grid_layer2(3)

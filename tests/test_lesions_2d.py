@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hippo_nav.engine import SpatialMemory
+from hippo_nav.engine import N_MODULES, SpatialMemory
 from hippo_nav.theory import predicted_lesion_order
 
 
@@ -15,7 +15,7 @@ def measured() -> dict:
     module_widths = np.array([m.bumps[0].width_rad for m in sm.readout().modules])
     widths = {}
     for active in [(0, 1, 2), (1, 2), (0, 2), (0, 1)]:
-        off = [i not in active for i in range(3)]
+        off = [i not in active for i in range(N_MODULES)]
         sm.set_lesions(*off)
         frames = [sm.step(0.0, 0.0, 0.1) for _ in range(8)]
         widths[active] = (

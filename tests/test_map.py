@@ -10,10 +10,13 @@ import pytest
 from hippo_nav import HippoNavError
 from hippo_nav.map import (
     ClosureMode,
+    CorrectionReport,
     ExperienceMap,
     MapParams,
     OnlineCorrection,
     PoseGraph,
+    RelaxationReport,
+    SolveReport,
     new_experience_map,
     read_g2o,
 )
@@ -63,10 +66,41 @@ def test_ratslam_second_lap_closes_the_loop_and_both_correctors_reduce_the_cost(
     relaxed = m.pose_graph()
     relaxation = relaxed.relax(passes=200)
     report = m.correct("least_squares")
-    assert report["converged"]
-    assert report["final_chi2"] < before
-    assert report["final_chi2"] <= relaxation["final_chi2"]
+    assert report.converged
+    assert report.final_chi2 < before
+    assert report.final_chi2 <= relaxation.final_chi2
     np.testing.assert_allclose(m.poses()[0], [0.0, 0.0, 0.0], atol=1e-12)
+
+
+def test_reports_are_frozen_typed_objects_that_also_read_like_dicts() -> None:
+    poses, edges, measurements, information, is_loop = _loop_arrays()
+    graph = PoseGraph.from_arrays(poses, edges, measurements, information, is_loop)
+    solved = graph.optimize(initialization="odometry", robust_loss="cauchy")
+    relaxed = PoseGraph.from_arrays(poses, edges, measurements, information, is_loop).relax(passes=5)
+    m = new_experience_map(RATSLAM)
+    for frame in square_circuit(2, 0.003):
+        m.on_frame(*frame)
+    corrected = m.correct("relaxation", passes=3)
+    assert isinstance(solved, SolveReport)
+    assert isinstance(relaxed, RelaxationReport)
+    assert isinstance(corrected, CorrectionReport)
+    assert solved.converged and solved.termination in ("cost_converged", "gradient_converged")
+    assert isinstance(solved.iterations, int) and solved.final_cost <= solved.initial_chi2
+    assert solved.downweighted_loops == 0
+    assert relaxed.iterations == 5 and corrected.iterations == 3 and not corrected.converged
+    for report in (solved, relaxed, corrected):
+        with pytest.raises(AttributeError):
+            report.final_chi2 = 0.0  # type: ignore[misc]
+        d = report.as_dict()
+        assert d["final_chi2"] == report["final_chi2"] == report.final_chi2
+        assert json.loads(json.dumps(d)) == d
+        assert repr(report).startswith(type(report).__name__ + "(")
+        with pytest.raises(KeyError):
+            report["no_such_field"]
+    assert list(solved.as_dict()) == [
+        "iterations", "initial_chi2", "final_chi2", "final_cost", "converged", "termination", "downweighted_loops"
+    ]  # fmt: skip
+    assert list(corrected.as_dict()) == ["iterations", "initial_chi2", "final_chi2", "converged"]
 
 
 def _loop_arrays(n: int = 40) -> tuple[np.ndarray, ...]:
@@ -223,8 +257,8 @@ def test_pose_graph_arrays_round_trip_and_solver_settings() -> None:
     np.testing.assert_array_equal(graph.is_loop(), is_loop)
     # max_iterations=0 runs only the initialisation.
     start = graph.optimize(initialization="odometry", max_iterations=0)
-    assert start["iterations"] == 0
-    assert graph.chi2() == pytest.approx(start["initial_chi2"])
+    assert start.iterations == 0
+    assert graph.chi2() == pytest.approx(start.initial_chi2)
     dead_reckoning = graph.poses()
     undamped = PoseGraph.from_arrays(dead_reckoning, edges, measurements, information, is_loop)
     report = undamped.optimize(initialization="current", relative_cost_tolerance=1e-12)
@@ -236,9 +270,9 @@ def test_pose_graph_arrays_round_trip_and_solver_settings() -> None:
         max_lambda_decrease=3.0,
     )
     # Same optimum; the earlier damped schedule needs more steps to get there.
-    assert report["converged"] and before["converged"]
-    assert report["final_chi2"] == pytest.approx(before["final_chi2"], rel=1e-9)
-    assert report["iterations"] < before["iterations"]
+    assert report.converged and before.converged
+    assert report.final_chi2 == pytest.approx(before.final_chi2, rel=1e-9)
+    assert report.iterations < before.iterations
     with pytest.raises(HippoNavError, match="initial_lambda_scale"):
         graph.optimize(initial_lambda_scale=-1.0)
     with pytest.raises(HippoNavError, match="max_lambda_decrease"):
@@ -250,5 +284,5 @@ def test_pose_graph_arrays_round_trip_and_solver_settings() -> None:
 def test_intel_benchmark_reaches_reference_optimum(shared_data, initialization: str) -> None:
     graph = read_g2o(shared_data / "posegraphs" / "intel.g2o")
     report = graph.optimize(initialization=initialization)
-    assert report["converged"]
-    assert report["final_chi2"] == pytest.approx(45.005, rel=1e-3)
+    assert report.converged
+    assert report.final_chi2 == pytest.approx(45.005, rel=1e-3)

@@ -25,3 +25,16 @@ def test_the_pipeline_is_reachable_from_the_package_without_loading_it_on_import
 
     result = hippo_nav.run(None, stop=4, progress=False)
     assert result.metrics["frames"] == 4 and result.out_dir is None
+
+
+def test_native_stubs_match_the_built_module():
+    """`_core.pyi` describes the built module exactly (mypy's stubtest; mypy is in the test extra)."""
+    import subprocess
+    import sys
+
+    import pytest
+
+    pytest.importorskip("mypy")
+    command = [sys.executable, "-m", "mypy.stubtest", "hippo_nav._core"]
+    done = subprocess.run(command, check=False, capture_output=True, text=True)
+    assert done.returncode == 0, done.stdout + done.stderr

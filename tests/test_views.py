@@ -27,7 +27,7 @@ def test_python_defaults_are_the_rust_defaults() -> None:
     rust = json.loads(_core.default_view_config_json())
     python = json.loads(ViewCellConfig().model_dump_json())
     assert python == rust
-    assert json.loads(_core.ViewCells(ViewCellConfig().model_dump_json()).config_json()) == rust
+    assert json.loads(_core._ViewCells(ViewCellConfig().model_dump_json()).config_json()) == rust
 
 
 def test_template_is_patch_normalised_and_exposure_invariant() -> None:
@@ -278,7 +278,7 @@ def test_bad_input_raises_clear_errors() -> None:
     with pytest.raises(ValidationError):
         ViewCellConfig(width=64)  # type: ignore[call-arg]
     with pytest.raises(HippoNavError, match="invalid view-cell config"):
-        _core.ViewCells('{"width_px": "wide"}')
+        _core._ViewCells('{"width_px": "wide"}')
     with pytest.raises(HippoNavError, match="fx_px > 0"):
         field_of_view_rad(0.0, 1241)
     with pytest.raises(HippoNavError, match="image_width_px > 0"):

@@ -11,7 +11,10 @@ The engine is Rust (`crates/hippo_map`); this module adds typed parameters and s
   `world_from_agent` and `vertex_from_agent`. `loop_candidates(vertices, step)` lists the vertices a
   closure at the next frame may join; `vertices_near(radius_m, step)` the vertices around the agent.
 - `correct(method="least_squares" | "relaxation")` corrects the vertex poses: sparse Levenberg–Marquardt
-  on SE(2) (optionally with a robust loss on loop links) or RatSLAM-style relaxation passes.
+  on SE(2) (optionally with a robust loss on loop links) or RatSLAM-style relaxation passes. It returns a
+  frozen `CorrectionReport`; `PoseGraph.optimize` a `SolveReport` and `PoseGraph.relax` a
+  `RelaxationReport`. Reports read by attribute (`report.final_chi2`), also like a dict
+  (`report["final_chi2"]`), and `as_dict()` gives a plain dict for JSON.
 - `poses()` gives `(N, 3)` arrays of `(x_m, y_m, yaw_rad)`; `export()` the whole graph as arrays;
   `save`/`load` a versioned, checksummed file; `PoseGraph` reads and writes g2o files.
 """
@@ -24,17 +27,27 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from hippo_nav._core import ExperienceMap, MapFrameOutcome, PoseGraph
+from hippo_nav._core import (
+    CorrectionReport,
+    ExperienceMap,
+    MapFrameOutcome,
+    PoseGraph,
+    RelaxationReport,
+    SolveReport,
+)
 from hippo_nav._defaults import rust_default
 
 __all__ = [
     "AmbiguityPolicy",
     "ClosureMode",
+    "CorrectionReport",
     "ExperienceMap",
     "MapFrameOutcome",
     "MapParams",
     "OnlineCorrection",
     "PoseGraph",
+    "RelaxationReport",
+    "SolveReport",
     "new_experience_map",
     "read_g2o",
 ]

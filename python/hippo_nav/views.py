@@ -71,7 +71,7 @@ class ViewCells:
 
     def __init__(self, config: ViewCellConfig | None = None) -> None:
         self.config = config or ViewCellConfig()
-        self._cells = _core.ViewCells(self.config.model_dump_json())
+        self._cells = _core._ViewCells(self.config.model_dump_json())
 
     def __len__(self) -> int:
         return len(self._cells)

@@ -186,7 +186,7 @@ def solve_hippo(
     # The earlier damped schedule, or None: the defaults.
     initial_lambda_scale, max_lambda_decrease = (1e-5, 3.0) if nielsen else (None, None)
     began, began_cpu = time.perf_counter(), time.process_time()
-    report = graph.optimize(
+    solved = graph.optimize(
         initialization="current",
         relative_cost_tolerance=tolerance,
         max_iterations=200,
@@ -194,7 +194,7 @@ def solve_hippo(
         max_lambda_decrease=max_lambda_decrease,
     )
     seconds = time.perf_counter() - began
-    report["cpu_seconds"] = time.process_time() - began_cpu
+    report = {**solved.as_dict(), "cpu_seconds": time.process_time() - began_cpu}
     return seconds, report, graph.poses()
 
 

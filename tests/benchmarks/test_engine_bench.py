@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hippo_nav.engine import EngineConfig, SpatialMemory
+from hippo_nav.engine import N_MODULES, EngineConfig, SpatialMemory
 
 
 @pytest.fixture(scope="module")
@@ -22,8 +22,19 @@ def test_frame_default(benchmark, default_engine: SpatialMemory):
     benchmark(default_engine.step, 0.2, 12.0, 0.1)
 
 
+def test_readout(benchmark, default_engine: SpatialMemory):
+    """The boundary's cost per frame: the readout object (built in Rust) and the fields the pipeline reads."""
+    benchmark.group = "readout"
+
+    def read() -> tuple:
+        r = default_engine.readout()
+        return r.heading_rad, r.place, r.fused, r.place_position_m
+
+    benchmark(read)
+
+
 def _paper_config() -> EngineConfig:
-    grid = [{"n_theta": 20, "n_nu": 7}] * 3
+    grid = [{"n_theta": 20, "n_nu": 7}] * N_MODULES
     return EngineConfig.model_validate({"grid": grid, "place": {"n_theta": 20}})
 
 

@@ -61,7 +61,7 @@ def test_best_match(benchmark, stores, n: int, query: str, search: str) -> None:
     benchmark.group = f"views_{n}"
     cells, queries = stores[n]
     q = queries[query]
-    core: _core.ViewCells = cells._cells
+    core: _core._ViewCells = cells._cells
     fast, brute = core.best_match(q), core.best_match_brute_force(q)
     assert fast is not None and brute is not None
     assert fast[0] == brute[0] and fast[2] == brute[2] and fast[1] == pytest.approx(brute[1], abs=1e-6)

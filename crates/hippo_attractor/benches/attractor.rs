@@ -2,6 +2,8 @@
 //! prints the ratios that matter, measured in this same run (absolute times on shared machines are noise):
 //! - the paper-size grid layer (20×20 × 7×7) recurrent input: dense weight matrix vs our fast path;
 //! - one default sub-step per module, per network, and one 10 Hz frame of the whole network.
+// A test or benchmark: a failed unwrap is the check failing (library code never unwraps, see Cargo.toml).
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 use criterion::{criterion_group, Criterion};
 use hippo_attractor::reference::DenseGridWeights;
 use hippo_attractor::{

@@ -19,13 +19,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         p.grid.iter_mut().for_each(|g| g.n_nu = m as usize);
     }
     if let Ok(v) = std::env::var("PLACE") {
-        let v: Vec<f64> = v.split(',').map(|x| x.parse().unwrap()).collect();
-        p.place.j0 = v[0];
-        p.place.j1 = v[1];
-        p.place.input_amp = v[2];
+        let v = v
+            .split(',')
+            .map(str::parse)
+            .collect::<Result<Vec<f64>, _>>()?;
+        let [j0, j1, input_amp] = v[..] else {
+            return Err("PLACE must be three numbers: j0,j1,input_amp".into());
+        };
+        (p.place.j0, p.place.j1, p.place.input_amp) = (j0, j1, input_amp);
     }
     if let Ok(v) = std::env::var("SUB") {
-        p.max_substep_s = v.parse().unwrap();
+        p.max_substep_s = v.parse()?;
     }
     let mut sm = SpatialMemory::<f32>::new(p)?;
     let dt = 0.1;

@@ -30,7 +30,9 @@ pub enum AttractorError {
     NothingToFuse,
     #[error("bad bump: {0}")]
     BadBump(String),
-    #[error("the network state diverged (non-finite activity); reduce `substeps_per_s` step size or the gains")]
+    #[error(
+        "the network state diverged (non-finite activity); reduce `max_substep_s` or the gains"
+    )]
     Diverged,
 }
 

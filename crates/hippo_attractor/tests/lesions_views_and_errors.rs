@@ -1,4 +1,6 @@
 //! Module lesions ("MEC inactivation"), view-cell injection, and the errors bad input gets.
+// A test or benchmark: a failed unwrap is the check failing (library code never unwraps, see Cargo.toml).
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 use hippo_attractor::circular::wrap;
 use hippo_attractor::{AttractorError, SpatialMemory, SpatialMemoryParams, ViewInjection};
 

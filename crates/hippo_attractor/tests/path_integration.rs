@@ -1,5 +1,7 @@
 //! Behaviour of the networks at their default sizes: bumps form, move at the commanded speed, and the
 //! whole network integrates a car-like 2-D trajectory.
+// A test or benchmark: a failed unwrap is the check failing (library code never unwraps, see Cargo.toml).
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 use hippo_attractor::circular::wrap;
 use hippo_attractor::decode::find_bumps;
 use hippo_attractor::dynamics::tau_effective;

@@ -1,4 +1,6 @@
 //! Both correctors on synthetic loops, and the robust loss against false loop closures.
+// A test or benchmark: a failed unwrap is the check failing (library code never unwraps, see Cargo.toml).
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 mod common;
 
 use hippo_map::{

@@ -1,16 +1,19 @@
 //! Bindings of `hippo_attractor`: the spatial-memory network, bump decoding and Bayesian fusion.
 //!
 //! Configuration crosses the boundary as JSON of `SpatialMemoryParams` (the Rust defaults are the single
-//! source; Python's pydantic model is generated from them). Readouts cross as JSON too (small); activity
-//! arrays cross as numpy arrays moved out of Rust vectors without copying.
+//! source; Python's pydantic model is generated from them). Readouts cross as frozen typed objects
+//! (`SpatialReadout`, `ModuleReadout`, `Bump`) that hold the Rust readout and build their Python values
+//! when read; activity arrays cross as numpy arrays moved out of Rust vectors without copying.
 use crate::errors::{to_py_err, HippoNavError};
 use hippo_attractor::{
-    decode, fuse_homocentric, Bump2, SpatialMemory, SpatialMemoryParams, ViewInjection,
+    decode, fuse_homocentric, Bump2, FusedEstimate, ModuleReadout, SpatialMemory,
+    SpatialMemoryParams, SpatialReadout, ViewInjection, N_MODULES,
 };
 use numpy::{
     IntoPyArray, PyArray1, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArrayMethods,
 };
 use pyo3::prelude::*;
+use pyo3::types::PyTuple;
 
 /// Copy any-layout float64 array into a flat row-major vector after checking its shape.
 fn flat_f64(name: &str, a: &PyReadonlyArrayDyn<'_, f64>, shape: &[usize]) -> PyResult<Vec<f64>> {
@@ -79,8 +82,201 @@ type ViewArg<'a> = (
 type BumpTuple = ((f64, f64), (f64, f64), f64);
 type ArrayPair<'py> = (Bound<'py, PyArray1<f64>>, Bound<'py, PyArray1<f64>>);
 
-/// The whole spatial-memory network (HD ring, three grid modules, place torus).
-#[pyclass(name = "SpatialMemory", module = "hippo_nav._core")]
+/// One bump on the 2-D neural torus (see `hippo_attractor::Bump2`): centre and per-axis standard
+/// deviation (rad), and its mass (total activity inside it; 1 for a fused estimate).
+#[pyclass(name = "Bump", module = "hippo_nav._core", frozen, eq)]
+#[derive(Clone, PartialEq)]
+pub struct PyBump {
+    inner: Bump2,
+}
+
+impl From<FusedEstimate> for PyBump {
+    fn from(f: FusedEstimate) -> Self {
+        Self {
+            inner: Bump2 {
+                mean_rad: f.mean_rad,
+                std_rad: f.std_rad,
+                mass: 1.0,
+            },
+        }
+    }
+}
+
+#[pymethods]
+impl PyBump {
+    #[new]
+    #[pyo3(signature = (mean_rad, std_rad, mass=1.0))]
+    fn new(mean_rad: (f64, f64), std_rad: (f64, f64), mass: f64) -> Self {
+        Self {
+            inner: Bump2 {
+                mean_rad: [mean_rad.0, mean_rad.1],
+                std_rad: [std_rad.0, std_rad.1],
+                mass,
+            },
+        }
+    }
+    /// Centre (θx, θy) on the torus, rad.
+    #[getter]
+    fn mean_rad(&self) -> (f64, f64) {
+        pair(self.inner.mean_rad)
+    }
+    /// Per-axis standard deviation (σx, σy), rad.
+    #[getter]
+    fn std_rad(&self) -> (f64, f64) {
+        pair(self.inner.std_rad)
+    }
+    #[getter]
+    fn mass(&self) -> f64 {
+        self.inner.mass
+    }
+    /// Mean of the two per-axis standard deviations, rad.
+    #[getter]
+    fn width_rad(&self) -> f64 {
+        0.5 * (self.inner.std_rad[0] + self.inner.std_rad[1])
+    }
+    fn __repr__(&self) -> String {
+        let b = &self.inner;
+        format!(
+            "Bump(mean_rad=({:.4}, {:.4}), std_rad=({:.4}, {:.4}), mass={:.4})",
+            b.mean_rad[0], b.mean_rad[1], b.std_rad[0], b.std_rad[1], b.mass
+        )
+    }
+}
+
+fn pair(a: [f64; 2]) -> (f64, f64) {
+    (a[0], a[1])
+}
+
+fn bumps_tuple<'py>(py: Python<'py>, bumps: &[Bump2]) -> PyResult<Bound<'py, PyTuple>> {
+    PyTuple::new(py, bumps.iter().map(|&inner| PyBump { inner }))
+}
+
+/// One grid module's part of a readout (see `hippo_attractor::ModuleReadout`).
+#[pyclass(name = "ModuleReadout", module = "hippo_nav._core", frozen, eq)]
+#[derive(PartialEq)]
+pub struct PyModuleReadout {
+    inner: ModuleReadout,
+}
+
+#[pymethods]
+impl PyModuleReadout {
+    /// Bumps per torus axis (1, 2, 4).
+    #[getter]
+    fn k(&self) -> usize {
+        self.inner.k
+    }
+    #[getter]
+    fn lesioned(&self) -> bool {
+        self.inner.lesioned
+    }
+    /// Every bump of the layer-II pattern, strongest first (none when lesioned).
+    #[getter]
+    fn bumps<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyTuple>> {
+        bumps_tuple(py, &self.inner.bumps)
+    }
+    /// Centre of the bump being followed (θx, θy), rad.
+    #[getter]
+    fn tracked_rad(&self) -> (f64, f64) {
+        pair(self.inner.tracked_rad)
+    }
+    /// Unwrapped displacement of the followed bump since reset (x, y), m.
+    #[getter]
+    fn position_m(&self) -> (f64, f64) {
+        pair(self.inner.position_m)
+    }
+    fn __repr__(&self) -> String {
+        let m = &self.inner;
+        format!(
+            "ModuleReadout(k={}, lesioned={}, bumps={}, tracked_rad=({:.4}, {:.4}), position_m=({:.3}, {:.3}))",
+            m.k,
+            if m.lesioned { "True" } else { "False" },
+            m.bumps.len(),
+            m.tracked_rad[0],
+            m.tracked_rad[1],
+            m.position_m[0],
+            m.position_m[1]
+        )
+    }
+}
+
+/// What the network reads out after a frame (see `hippo_attractor::SpatialReadout`). Frozen; nested
+/// values are built when read, so a readout costs one small object per frame.
+#[pyclass(name = "SpatialReadout", module = "hippo_nav._core", frozen, eq)]
+#[derive(PartialEq)]
+pub struct PySpatialReadout {
+    inner: SpatialReadout,
+}
+
+#[pymethods]
+impl PySpatialReadout {
+    /// Network time since construction, s.
+    #[getter]
+    fn time_s(&self) -> f64 {
+        self.inner.time_s
+    }
+    /// Decoded heading ψ in [0, 2π), rad.
+    #[getter]
+    fn heading_rad(&self) -> f64 {
+        self.inner.hd.heading_rad
+    }
+    /// Angular velocity decoded from the HD bump's velocity position, rad/s.
+    #[getter]
+    fn yaw_rate_rad_s(&self) -> f64 {
+        self.inner.hd.yaw_rate_rad_s
+    }
+    /// Mean activity of the HD ring (0 means its bump died).
+    #[getter]
+    fn hd_mean_activity(&self) -> f64 {
+        self.inner.hd.mean_activity
+    }
+    /// One readout per grid module, coarsest first (`N_MODULES` of them).
+    #[getter]
+    fn modules<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyTuple>> {
+        PyTuple::new(
+            py,
+            self.inner
+                .modules
+                .iter()
+                .map(|m| PyModuleReadout { inner: m.clone() }),
+        )
+    }
+    /// The Bayesian fusion of the homocentric bumps; None if every module is lesioned or silent.
+    #[getter]
+    fn fused(&self) -> Option<PyBump> {
+        self.inner.fused.map(PyBump::from)
+    }
+    /// The CA3 place bump; None if the place network is silent.
+    #[getter]
+    fn place(&self) -> Option<PyBump> {
+        self.inner.place.map(|inner| PyBump { inner })
+    }
+    /// Unwrapped place-code displacement since reset (x, y), m.
+    #[getter]
+    fn place_position_m(&self) -> (f64, f64) {
+        pair(self.inner.place_position_m)
+    }
+    /// Integration sub-steps taken for the last frame.
+    #[getter]
+    fn substeps(&self) -> usize {
+        self.inner.substeps
+    }
+    fn __repr__(&self) -> String {
+        let r = &self.inner;
+        format!(
+            "SpatialReadout(time_s={:.3}, heading_rad={:.4}, place_position_m=({:.3}, {:.3}), bumps={:?}, substeps={})",
+            r.time_s,
+            r.hd.heading_rad,
+            r.place_position_m[0],
+            r.place_position_m[1],
+            r.modules.iter().map(|m| m.bumps.len()).collect::<Vec<_>>(),
+            r.substeps
+        )
+    }
+}
+
+/// The whole spatial-memory network (HD ring, `N_MODULES` grid modules, place torus). Private: wrapped by
+/// `hippo_nav.engine.SpatialMemory`.
+#[pyclass(name = "_SpatialMemory", module = "hippo_nav._core")]
 pub struct PySpatialMemory {
     engine: Engine,
 }
@@ -134,8 +330,8 @@ impl PySpatialMemory {
             .map_err(|e| HippoNavError::new_err(e.to_string()))
     }
 
-    /// Advance one camera frame. `view`: optional (hd_profile (Nθ,), [layer2 (N,N) or None] × 3, strength).
-    /// Returns the readout as JSON.
+    /// Advance one camera frame. `view`: optional (hd_profile (Nθ,), [layer2 (N,N) or None] × N_MODULES,
+    /// strength).
     #[pyo3(signature = (yaw_rate_rad_s, speed_m_s, dt_s, view=None))]
     fn step(
         &mut self,
@@ -144,21 +340,21 @@ impl PySpatialMemory {
         speed_m_s: f64,
         dt_s: f64,
         view: Option<ViewArg<'_>>,
-    ) -> PyResult<String> {
+    ) -> PyResult<PySpatialReadout> {
         let view = match view {
             None => None,
             Some((hd, grids, strength)) => {
                 let (nt, n) = with_engine!(&self.engine, sm, T, {
                     (sm.params().hd.n_theta, sm.params().place.n_theta)
                 });
-                if grids.len() != 3 {
+                if grids.len() != N_MODULES {
                     return Err(HippoNavError::new_err(format!(
-                        "view grid patterns: expected 3 (one per module, None to skip), got {}",
+                        "view grid patterns: expected {N_MODULES} (one per module, None to skip), got {}",
                         grids.len()
                     )));
                 }
                 let hd = flat_f64("view hd_profile", &hd, &[nt])?;
-                let mut g: [Option<Vec<f64>>; 3] = [None, None, None];
+                let mut g: [Option<Vec<f64>>; N_MODULES] = Default::default();
                 for (i, p) in grids.iter().enumerate() {
                     if let Some(p) = p {
                         g[i] = Some(flat_f64("view grid pattern", p, &[n, n])?);
@@ -167,7 +363,7 @@ impl PySpatialMemory {
                 Some((hd, g, strength))
             }
         };
-        let readout = with_engine!(&mut self.engine, sm, T, {
+        let inner = with_engine!(&mut self.engine, sm, T, {
             let inj = view.map(|(hd, g, strength)| ViewInjection::<T> {
                 hd_profile: to_vec(hd),
                 grid_layer2: g.map(|p| p.map(to_vec)),
@@ -176,13 +372,14 @@ impl PySpatialMemory {
             py.detach(|| sm.step(yaw_rate_rad_s, speed_m_s, dt_s, inj.as_ref()))
         })
         .map_err(to_py_err)?;
-        serde_json::to_string(&readout).map_err(|e| HippoNavError::new_err(e.to_string()))
+        Ok(PySpatialReadout { inner })
     }
 
-    /// The current readout as JSON.
-    fn readout(&self) -> PyResult<String> {
-        let r = with_engine!(&self.engine, sm, T, sm.readout());
-        serde_json::to_string(&r).map_err(|e| HippoNavError::new_err(e.to_string()))
+    /// The current readout (no integration).
+    fn readout(&self) -> PySpatialReadout {
+        PySpatialReadout {
+            inner: with_engine!(&self.engine, sm, T, sm.readout()),
+        }
     }
 
     /// Re-seed every network at a heading and torus phase and let the bumps settle.
@@ -195,7 +392,7 @@ impl PySpatialMemory {
     }
 
     /// Switch modules off (True) or on, coarsest first.
-    fn set_lesions(&mut self, lesioned: [bool; 3]) {
+    fn set_lesions(&mut self, lesioned: [bool; N_MODULES]) {
         with_engine!(&mut self.engine, sm, T, sm.set_lesions(lesioned))
     }
 
@@ -291,12 +488,13 @@ impl PySpatialMemory {
         });
         // Every array is checked before anything changes, so a bad state never half-loads.
         let hd = flat_activity("hd activity", &hd, &[hp.n_nu, hp.n_theta])?;
-        if grids.len() != 3 {
-            return Err(HippoNavError::new_err(
-                "grid activities: expected one array per module (3)",
-            ));
+        if grids.len() != N_MODULES {
+            return Err(HippoNavError::new_err(format!(
+                "grid activities: expected one array per module ({N_MODULES}), got {}",
+                grids.len()
+            )));
         }
-        let mut g = Vec::with_capacity(3);
+        let mut g = Vec::with_capacity(N_MODULES);
         for (a, p) in grids.iter().zip(&gp) {
             g.push(flat_activity(
                 "grid activity",
@@ -325,7 +523,7 @@ fn module_index(index: i64) -> PyResult<usize> {
 
 fn module_index_error(index: i64) -> PyErr {
     HippoNavError::new_err(format!(
-        "grid module index {index} out of range: there are 3 (0 = coarsest)"
+        "grid module index {index} out of range: there are {N_MODULES} (0 = coarsest)"
     ))
 }
 
@@ -437,7 +635,11 @@ fn grid_recurrent_input_check<'py>(
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add("N_MODULES", N_MODULES)?;
     m.add_class::<PySpatialMemory>()?;
+    m.add_class::<PySpatialReadout>()?;
+    m.add_class::<PyModuleReadout>()?;
+    m.add_class::<PyBump>()?;
     m.add_function(wrap_pyfunction!(default_engine_config_json, m)?)?;
     m.add_function(wrap_pyfunction!(find_bumps, m)?)?;
     m.add_function(wrap_pyfunction!(fuse_modules, m)?)?;

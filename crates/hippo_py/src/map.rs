@@ -2,19 +2,24 @@
 //!
 //! Parameters cross as JSON of the Rust structs (`MapParams`; the Rust defaults are the single source).
 //! Poses cross as `(N, 3)` float64 arrays of `(x_m, y_m, yaw_rad)`; any numpy layout is accepted and
-//! checked for shape and finiteness. The interpreter is released while a corrector runs.
+//! checked for shape and finiteness. The interpreter is released while a corrector runs. What a frame or
+//! a corrector did comes back as a frozen typed object (`MapFrameOutcome`, `SolveReport`,
+//! `RelaxationReport`, `CorrectionReport`); the reports also read like dicts (`report["final_chi2"]`,
+//! `as_dict()`).
 use crate::errors::{to_py_err, HippoNavError};
 use hippo_map::{
     isotropic_information, optimize, parse_g2o, read_g2o, relax, write_g2o, ClosureRejection,
-    Corrector, Edge, EdgeKind, ExperienceMap, FrameInput, FrameOutcome, Initialization, Link,
-    LoopMeasurement, MapParams, Pose2, PoseGraph, RelaxationParams, RobustLoss, SolverParams,
-    Vertex,
+    CorrectionReport, Corrector, Edge, EdgeKind, ExperienceMap, FrameInput, FrameOutcome,
+    Initialization, Link, LoopMeasurement, MapParams, Pose2, PoseGraph, RelaxationParams,
+    RelaxationReport, RobustLoss, SolveReport, SolverParams, Termination, Vertex,
 };
 use numpy::{
     IntoPyArray, PyArray2, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArrayMethods,
 };
+use pyo3::exceptions::PyKeyError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
+use pyo3::IntoPyObjectExt;
 use std::path::PathBuf;
 
 /// `(x, y, yaw)` as it crosses the boundary.
@@ -124,12 +129,235 @@ fn solver_params(
     })
 }
 
-fn report_dict<'py>(py: Python<'py>, items: &[(&str, Py<PyAny>)]) -> PyResult<Bound<'py, PyDict>> {
-    let d = PyDict::new(py);
-    for (k, v) in items {
-        d.set_item(*k, v)?;
+/// A report's fields in order, for `as_dict`, `__getitem__` and `__repr__`.
+trait ReportFields {
+    const NAME: &'static str;
+    fn fields<'py>(&self, py: Python<'py>) -> PyResult<Vec<(&'static str, Bound<'py, PyAny>)>>;
+
+    fn as_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let d = PyDict::new(py);
+        for (k, v) in self.fields(py)? {
+            d.set_item(k, v)?;
+        }
+        Ok(d)
     }
-    Ok(d)
+
+    fn item<'py>(&self, py: Python<'py>, key: &str) -> PyResult<Bound<'py, PyAny>> {
+        self.fields(py)?
+            .into_iter()
+            .find(|(k, _)| *k == key)
+            .map(|(_, v)| v)
+            .ok_or_else(|| PyKeyError::new_err(key.to_owned()))
+    }
+
+    fn repr(&self, py: Python<'_>) -> PyResult<String> {
+        let parts = self
+            .fields(py)?
+            .into_iter()
+            .map(|(k, v)| Ok(format!("{k}={}", v.repr()?)))
+            .collect::<PyResult<Vec<_>>>()?;
+        Ok(format!("{}({})", Self::NAME, parts.join(", ")))
+    }
+}
+
+fn any<'py, T: IntoPyObject<'py>>(py: Python<'py>, v: T) -> PyResult<Bound<'py, PyAny>> {
+    v.into_bound_py_any(py)
+}
+
+fn termination_name(t: Termination) -> &'static str {
+    match t {
+        Termination::CostConverged => "cost_converged",
+        Termination::GradientConverged => "gradient_converged",
+        Termination::NothingToDo => "nothing_to_do",
+        Termination::NoFurtherDecrease => "no_further_decrease",
+        Termination::MaxIterations => "max_iterations",
+    }
+}
+
+/// What a least-squares solve did (see `hippo_map::SolveReport`).
+#[pyclass(name = "SolveReport", module = "hippo_nav._core", frozen, eq, mapping)]
+#[derive(PartialEq)]
+pub struct PySolveReport {
+    inner: SolveReport,
+}
+
+impl ReportFields for PySolveReport {
+    const NAME: &'static str = "SolveReport";
+    fn fields<'py>(&self, py: Python<'py>) -> PyResult<Vec<(&'static str, Bound<'py, PyAny>)>> {
+        let r = &self.inner;
+        Ok(vec![
+            ("iterations", any(py, r.iterations)?),
+            ("initial_chi2", any(py, r.initial_chi2)?),
+            ("final_chi2", any(py, r.final_chi2)?),
+            ("final_cost", any(py, r.final_cost)?),
+            ("converged", any(py, r.converged)?),
+            ("termination", any(py, termination_name(r.termination))?),
+            ("downweighted_loops", any(py, r.downweighted_loops)?),
+        ])
+    }
+}
+
+#[pymethods]
+impl PySolveReport {
+    /// Accepted and rejected Levenberg–Marquardt iterations (each one factorisation).
+    #[getter]
+    fn iterations(&self) -> usize {
+        self.inner.iterations
+    }
+    /// `χ²` (plain, all edges) at the start, after initialisation.
+    #[getter]
+    fn initial_chi2(&self) -> f64 {
+        self.inner.initial_chi2
+    }
+    /// `χ²` (plain, all edges) at the end.
+    #[getter]
+    fn final_chi2(&self) -> f64 {
+        self.inner.final_chi2
+    }
+    /// The minimised objective at the end (equals `final_chi2` without a robust loss).
+    #[getter]
+    fn final_cost(&self) -> f64 {
+        self.inner.final_cost
+    }
+    #[getter]
+    fn converged(&self) -> bool {
+        self.inner.converged
+    }
+    /// Why the solve stopped: "cost_converged", "gradient_converged", "nothing_to_do",
+    /// "no_further_decrease" or "max_iterations".
+    #[getter]
+    fn termination(&self) -> &'static str {
+        termination_name(self.inner.termination)
+    }
+    /// Loop edges whose final robust weight is below ½ (treated as outliers); 0 without a robust loss.
+    #[getter]
+    fn downweighted_loops(&self) -> usize {
+        self.inner.downweighted_loops
+    }
+    /// The fields as a plain dict (e.g. for JSON).
+    fn as_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        ReportFields::as_dict(self, py)
+    }
+    fn __getitem__<'py>(&self, py: Python<'py>, key: &str) -> PyResult<Bound<'py, PyAny>> {
+        self.item(py, key)
+    }
+    fn __repr__(&self, py: Python<'_>) -> PyResult<String> {
+        self.repr(py)
+    }
+}
+
+/// What relaxation passes did (see `hippo_map::RelaxationReport`).
+#[pyclass(
+    name = "RelaxationReport",
+    module = "hippo_nav._core",
+    frozen,
+    eq,
+    mapping
+)]
+#[derive(PartialEq)]
+pub struct PyRelaxationReport {
+    inner: RelaxationReport,
+}
+
+impl ReportFields for PyRelaxationReport {
+    const NAME: &'static str = "RelaxationReport";
+    fn fields<'py>(&self, py: Python<'py>) -> PyResult<Vec<(&'static str, Bound<'py, PyAny>)>> {
+        let r = &self.inner;
+        Ok(vec![
+            ("iterations", any(py, r.passes)?),
+            ("initial_chi2", any(py, r.initial_chi2)?),
+            ("final_chi2", any(py, r.final_chi2)?),
+        ])
+    }
+}
+
+#[pymethods]
+impl PyRelaxationReport {
+    /// Relaxation passes run.
+    #[getter]
+    fn iterations(&self) -> usize {
+        self.inner.passes
+    }
+    /// `χ²` before the first pass.
+    #[getter]
+    fn initial_chi2(&self) -> f64 {
+        self.inner.initial_chi2
+    }
+    /// `χ²` after the last pass.
+    #[getter]
+    fn final_chi2(&self) -> f64 {
+        self.inner.final_chi2
+    }
+    /// The fields as a plain dict (e.g. for JSON).
+    fn as_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        ReportFields::as_dict(self, py)
+    }
+    fn __getitem__<'py>(&self, py: Python<'py>, key: &str) -> PyResult<Bound<'py, PyAny>> {
+        self.item(py, key)
+    }
+    fn __repr__(&self, py: Python<'_>) -> PyResult<String> {
+        self.repr(py)
+    }
+}
+
+/// What `ExperienceMap.correct` did, with either corrector (see `hippo_map::CorrectionReport`).
+#[pyclass(
+    name = "CorrectionReport",
+    module = "hippo_nav._core",
+    frozen,
+    eq,
+    mapping
+)]
+#[derive(PartialEq)]
+pub struct PyCorrectionReport {
+    inner: CorrectionReport,
+}
+
+impl ReportFields for PyCorrectionReport {
+    const NAME: &'static str = "CorrectionReport";
+    fn fields<'py>(&self, py: Python<'py>) -> PyResult<Vec<(&'static str, Bound<'py, PyAny>)>> {
+        let r = &self.inner;
+        Ok(vec![
+            ("iterations", any(py, r.iterations)?),
+            ("initial_chi2", any(py, r.initial_chi2)?),
+            ("final_chi2", any(py, r.final_chi2)?),
+            ("converged", any(py, r.converged)?),
+        ])
+    }
+}
+
+#[pymethods]
+impl PyCorrectionReport {
+    /// Relaxation passes or Levenberg–Marquardt iterations.
+    #[getter]
+    fn iterations(&self) -> usize {
+        self.inner.iterations
+    }
+    /// `χ²` of the map before the correction (after initialisation for least squares).
+    #[getter]
+    fn initial_chi2(&self) -> f64 {
+        self.inner.initial_chi2
+    }
+    /// `χ²` after the correction.
+    #[getter]
+    fn final_chi2(&self) -> f64 {
+        self.inner.final_chi2
+    }
+    /// Whether least squares converged (always False for relaxation, which has no test).
+    #[getter]
+    fn converged(&self) -> bool {
+        self.inner.converged
+    }
+    /// The fields as a plain dict (e.g. for JSON).
+    fn as_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        ReportFields::as_dict(self, py)
+    }
+    fn __getitem__<'py>(&self, py: Python<'py>, key: &str) -> PyResult<Bound<'py, PyAny>> {
+        self.item(py, key)
+    }
+    fn __repr__(&self, py: Python<'_>) -> PyResult<String> {
+        self.repr(py)
+    }
 }
 
 /// A (3, 3) information matrix from any numpy layout (checked for shape and finiteness here, for
@@ -353,7 +581,7 @@ impl PyPoseGraph {
 
     /// Gauss–Newton first, Levenberg–Marquardt when a step fails, on faer's sparse Cholesky (see
     /// `hippo_map::SolverParams` for the tolerances and the damping schedule; `None` keeps a default).
-    /// `max_iterations=0` only runs the initialisation. Returns the report as a dict.
+    /// `max_iterations=0` only runs the initialisation.
     #[pyo3(signature = (
         initialization="chordal",
         robust_loss=None,
@@ -364,9 +592,9 @@ impl PyPoseGraph {
         max_lambda_decrease=None,
     ))]
     #[allow(clippy::too_many_arguments)]
-    fn optimize<'py>(
+    fn optimize(
         &mut self,
-        py: Python<'py>,
+        py: Python<'_>,
         initialization: &str,
         robust_loss: Option<&str>,
         robust_scale_chi2: f64,
@@ -374,7 +602,7 @@ impl PyPoseGraph {
         relative_cost_tolerance: Option<f64>,
         initial_lambda_scale: Option<f64>,
         max_lambda_decrease: Option<f64>,
-    ) -> PyResult<Bound<'py, PyDict>> {
+    ) -> PyResult<PySolveReport> {
         let params = solver_params(
             initialization,
             robust_loss,
@@ -387,77 +615,18 @@ impl PyPoseGraph {
             },
         )?;
         let graph = &mut self.graph;
-        let r = py.detach(|| optimize(graph, &params)).map_err(to_py_err)?;
-        report_dict(
-            py,
-            &[
-                (
-                    "iterations",
-                    r.iterations.into_pyobject(py)?.into_any().unbind(),
-                ),
-                (
-                    "initial_chi2",
-                    r.initial_chi2.into_pyobject(py)?.into_any().unbind(),
-                ),
-                (
-                    "final_chi2",
-                    r.final_chi2.into_pyobject(py)?.into_any().unbind(),
-                ),
-                (
-                    "final_cost",
-                    r.final_cost.into_pyobject(py)?.into_any().unbind(),
-                ),
-                (
-                    "converged",
-                    pyo3::types::PyBool::new(py, r.converged)
-                        .to_owned()
-                        .into_any()
-                        .unbind(),
-                ),
-                (
-                    "termination",
-                    format!("{:?}", r.termination)
-                        .into_pyobject(py)?
-                        .into_any()
-                        .unbind(),
-                ),
-                (
-                    "downweighted_loops",
-                    r.downweighted_loops.into_pyobject(py)?.into_any().unbind(),
-                ),
-            ],
-        )
+        let inner = py.detach(|| optimize(graph, &params)).map_err(to_py_err)?;
+        Ok(PySolveReport { inner })
     }
 
-    /// RatSLAM-style relaxation passes. Returns the report as a dict.
+    /// RatSLAM-style relaxation passes.
     #[pyo3(signature = (passes=100, gain=0.5))]
-    fn relax<'py>(
-        &mut self,
-        py: Python<'py>,
-        passes: usize,
-        gain: f64,
-    ) -> PyResult<Bound<'py, PyDict>> {
+    fn relax(&mut self, py: Python<'_>, passes: usize, gain: f64) -> PyResult<PyRelaxationReport> {
         let graph = &mut self.graph;
-        let r = py
+        let inner = py
             .detach(|| relax(graph, &RelaxationParams { gain, passes }))
             .map_err(to_py_err)?;
-        report_dict(
-            py,
-            &[
-                (
-                    "iterations",
-                    r.passes.into_pyobject(py)?.into_any().unbind(),
-                ),
-                (
-                    "initial_chi2",
-                    r.initial_chi2.into_pyobject(py)?.into_any().unbind(),
-                ),
-                (
-                    "final_chi2",
-                    r.final_chi2.into_pyobject(py)?.into_any().unbind(),
-                ),
-            ],
-        )
+        Ok(PyRelaxationReport { inner })
     }
 
     /// Replace the poses by dead reckoning along the odometry edges.
@@ -737,13 +906,13 @@ impl PyExperienceMap {
     }
 
     /// Correct the vertex poses. `method`: "least_squares" (LM; starts from the current poses by default)
-    /// or "relaxation" (`passes` passes at `gain`). Returns iterations, initial_chi2, final_chi2, converged.
+    /// or "relaxation" (`passes` passes at `gain`).
     #[pyo3(signature = (method="least_squares", passes=100, gain=0.5, initialization="current", robust_loss=None,
                         robust_scale_chi2=1.0, max_iterations=100))]
     #[allow(clippy::too_many_arguments)]
-    fn correct<'py>(
+    fn correct(
         &mut self,
-        py: Python<'py>,
+        py: Python<'_>,
         method: &str,
         passes: usize,
         gain: f64,
@@ -751,7 +920,7 @@ impl PyExperienceMap {
         robust_loss: Option<&str>,
         robust_scale_chi2: f64,
         max_iterations: usize,
-    ) -> PyResult<Bound<'py, PyDict>> {
+    ) -> PyResult<PyCorrectionReport> {
         let corrector = match method {
             "least_squares" => Corrector::LeastSquares(solver_params(
                 initialization,
@@ -772,13 +941,8 @@ impl PyExperienceMap {
             }
         };
         let map = &mut self.map;
-        let r = py.detach(|| map.correct(&corrector)).map_err(to_py_err)?;
-        let d = PyDict::new(py);
-        d.set_item("iterations", r.iterations)?;
-        d.set_item("initial_chi2", r.initial_chi2)?;
-        d.set_item("final_chi2", r.final_chi2)?;
-        d.set_item("converged", r.converged)?;
-        Ok(d)
+        let inner = py.detach(|| map.correct(&corrector)).map_err(to_py_err)?;
+        Ok(PyCorrectionReport { inner })
     }
 
     /// Forget the agent's place: frames only look for a vertex to resume from.
@@ -811,5 +975,8 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyPoseGraph>()?;
     m.add_class::<PyExperienceMap>()?;
     m.add_class::<PyFrameOutcome>()?;
+    m.add_class::<PySolveReport>()?;
+    m.add_class::<PyRelaxationReport>()?;
+    m.add_class::<PyCorrectionReport>()?;
     Ok(())
 }

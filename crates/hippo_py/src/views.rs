@@ -73,7 +73,8 @@ fn candidate_ids(c: &CandidatesArg<'_>) -> PyResult<Vec<usize>> {
 }
 
 /// What one observation did (see `hippo_views::ViewObservation`).
-#[pyclass(name = "ViewObservation", module = "hippo_nav._core", frozen)]
+#[pyclass(name = "ViewObservation", module = "hippo_nav._core", frozen, eq)]
+#[derive(PartialEq)]
 pub struct PyViewObservation {
     inner: ViewObservation,
 }
@@ -124,8 +125,9 @@ impl PyViewObservation {
     }
 }
 
-/// Local view cells: stored templates and a fast exact best-match search.
-#[pyclass(name = "ViewCells", module = "hippo_nav._core")]
+/// Local view cells: stored templates and a fast exact best-match search. Private: wrapped by
+/// `hippo_nav.views.ViewCells`.
+#[pyclass(name = "_ViewCells", module = "hippo_nav._core")]
 pub struct PyViewCells {
     cells: ViewCells,
 }

@@ -175,6 +175,8 @@ pub(crate) fn denominator(a_sum: &Summary, b_sum: &Summary, shift: isize) -> f32
 /// baseline SSE2 build). The result is bit-identical either way: the order of every add is fixed by the
 /// code, the instruction set only changes how many lanes are added at once.
 #[inline]
+// The only unsafe code of the workspace (denied elsewhere): calling the AVX2 build after the CPU check.
+#[allow(unsafe_code)]
 pub(crate) fn numerator(
     a: &[f32],
     b: &[f32],
@@ -197,6 +199,7 @@ pub(crate) fn numerator(
 /// The CPU must support AVX2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
+#[allow(unsafe_code)]
 unsafe fn numerator_avx2(
     a: &[f32],
     b: &[f32],

@@ -1,4 +1,6 @@
 //! Behaviour of view-cell matching: differences, shifts, headings, exactness of the pruned search, errors.
+// A test or benchmark: a failed unwrap is the check failing (library code never unwraps, see Cargo.toml).
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 use approx::assert_abs_diff_eq;
 use hippo_views::{ViewCellParams, ViewCells, ViewError, ViewStatus};
 use rand::{Rng, SeedableRng};

@@ -7,13 +7,14 @@ from typing import Any
 
 from pydantic import BaseModel, ConfigDict, Field, model_validator
 
+from hippo_nav import _core
 from hippo_nav._defaults import rust_default, rust_defaults
 
-N_MODULES = 3
+N_MODULES: int = _core.N_MODULES
 """Grid modules of the network (the Rust engine's `N_MODULES`)."""
 
 MODULE_NAMES = ("ventral", "intermediate", "dorsal")
-"""Grid modules from coarsest (k = 1, ventral MEC) to finest (k = 4, dorsal MEC)."""
+"""Grid modules from coarsest (k = 1, ventral MEC) to finest (k = 4, dorsal MEC), one name per module."""
 
 
 def _merge(defaults: Any, given: Any) -> Any:

@@ -60,8 +60,8 @@ class DriveResult:
 
     heading_rad: np.ndarray
     place_position_m: np.ndarray
-    module_positions_m: np.ndarray  # (N, 3, 2)
-    bump_counts: np.ndarray  # (N, 3)
+    module_positions_m: np.ndarray  # (N, N_MODULES, 2)
+    bump_counts: np.ndarray  # (N, N_MODULES)
     interrupted: bool = False
 
 

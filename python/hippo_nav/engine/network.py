@@ -1,103 +1,41 @@
 """The spatial-memory network (Rust engine) with a typed Python face.
 
 `SpatialMemory.step(yaw_rate_rad_s, speed_m_s, dt_s, view)` advances one camera frame and returns a
-`SpatialReadout`; the activity getters return numpy arrays (float64) for plots and view cells.
+`SpatialReadout` (frozen, built in Rust: `Bump`, `ModuleReadout` and `SpatialReadout` are the native
+classes); the activity getters return numpy arrays (float64) for plots and view cells.
 Angles are radians on the neural torus/ring; positions are metres in the map frame of the engine
 (x along the initial heading, y to its left).
 """
 
 from __future__ import annotations
 
-import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from hippo_nav import _core
-from hippo_nav.engine.config import EngineConfig
+from hippo_nav._core import Bump, ModuleReadout, SpatialReadout
+from hippo_nav.engine.config import N_MODULES, EngineConfig
 
-
-@dataclass(frozen=True)
-class Bump:
-    mean_rad: tuple[float, float]
-    std_rad: tuple[float, float]
-    mass: float = 1.0
-
-    @property
-    def width_rad(self) -> float:
-        """Mean of the two per-axis standard deviations."""
-        return 0.5 * (self.std_rad[0] + self.std_rad[1])
-
-
-@dataclass(frozen=True)
-class ModuleReadout:
-    k: int
-    lesioned: bool
-    bumps: list[Bump]
-    tracked_rad: tuple[float, float]
-    position_m: tuple[float, float]
-
-
-@dataclass(frozen=True)
-class SpatialReadout:
-    time_s: float
-    heading_rad: float
-    yaw_rate_rad_s: float
-    hd_mean_activity: float
-    modules: list[ModuleReadout]
-    fused: Bump | None
-    place: Bump | None
-    place_position_m: tuple[float, float]
-    substeps: int
-
-    @classmethod
-    def from_json(cls, text: str) -> SpatialReadout:
-        d = json.loads(text)
-
-        def bump(b: dict | None) -> Bump | None:
-            if b is None:
-                return None
-            return Bump(tuple(b["mean_rad"]), tuple(b["std_rad"]), b.get("mass", 1.0))
-
-        return cls(
-            time_s=d["time_s"],
-            heading_rad=d["hd"]["heading_rad"],
-            yaw_rate_rad_s=d["hd"]["yaw_rate_rad_s"],
-            hd_mean_activity=d["hd"]["mean_activity"],
-            modules=[
-                ModuleReadout(
-                    k=m["k"],
-                    lesioned=m["lesioned"],
-                    bumps=[bump(b) for b in m["bumps"]],
-                    tracked_rad=tuple(m["tracked_rad"]),
-                    position_m=tuple(m["position_m"]),
-                )
-                for m in d["modules"]
-            ],
-            fused=bump(d["fused"]),
-            place=bump(d["place"]),
-            place_position_m=tuple(d["place_position_m"]),
-            substeps=d["substeps"],
-        )
+__all__ = ["Bump", "ModuleReadout", "SpatialMemory", "SpatialReadout", "ViewPatterns"]
 
 
 @dataclass
 class ViewPatterns:
-    """What a view cell stores and injects back (docs/spec.md §7): HD θ-profile, layer-II patterns."""
+    """What a view cell stores and injects back (docs/spec.md §7): the HD θ-profile and each grid module's
+    layer-II pattern (None skips a module), injected at `strength`."""
 
     hd_profile: np.ndarray
     grid_layer2: list[np.ndarray | None]
-    place: np.ndarray | None = None
     strength: float = 1.0
-    extra: dict = field(default_factory=dict)
 
 
 class SpatialMemory:
-    """HD ring + three grid modules + CA3 place torus, stepped per camera frame."""
+    """HD ring + `N_MODULES` grid modules + CA3 place torus, stepped per camera frame."""
 
     def __init__(self, config: EngineConfig | None = None, dtype: str = "float32") -> None:
         self.config = config if config is not None else EngineConfig()
-        self._net = _core.SpatialMemory(self.config.to_json(), dtype)
+        self._net = _core._SpatialMemory(self.config.to_json(), dtype)
 
     def step(
         self, yaw_rate_rad_s: float, speed_m_s: float, dt_s: float, view: ViewPatterns | None = None
@@ -109,12 +47,11 @@ class SpatialMemory:
                 [None if g is None else np.asarray(g, dtype=np.float64) for g in view.grid_layer2],
                 float(view.strength),
             )
-        return SpatialReadout.from_json(
-            self._net.step(float(yaw_rate_rad_s), float(speed_m_s), float(dt_s), packed)
-        )
+        return self._net.step(float(yaw_rate_rad_s), float(speed_m_s), float(dt_s), packed)
 
     def readout(self) -> SpatialReadout:
-        return SpatialReadout.from_json(self._net.readout())
+        """The current readout, without integrating."""
+        return self._net.readout()
 
     def reset(self, heading_rad: float = 0.0, phase_rad: tuple[float, float] = (0.0, 0.0)) -> None:
         self._net.reset(float(heading_rad), (float(phase_rad[0]), float(phase_rad[1])))
@@ -149,15 +86,14 @@ class SpatialMemory:
         """The patterns a new view cell stores (docs/spec.md §7)."""
         return ViewPatterns(
             hd_profile=self.hd_profile(),
-            grid_layer2=[self.grid_layer2(i) for i in range(3)],
-            place=self.place_activity(),
+            grid_layer2=[self.grid_layer2(i) for i in range(N_MODULES)],
         )
 
     def state(self) -> dict:
         """Full network state, for saving and resuming: activity arrays plus `aux` (JSON text)."""
         return {
             "hd": self.hd_activity(),
-            "grid": [self.grid_activity(i) for i in range(3)],
+            "grid": [self.grid_activity(i) for i in range(N_MODULES)],
             "place": self.place_activity(),
             "aux": self._net.aux_state_json(),
         }

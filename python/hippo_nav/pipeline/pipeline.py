@@ -49,7 +49,7 @@ import numpy as np
 from hippo_nav._core import HippoNavError
 from hippo_nav.closure import Keyframe, KeyframeExtractor, LoopMeasurer
 from hippo_nav.datasets.base import StereoFrame
-from hippo_nav.engine import CompactView, SpatialMemory, SpatialReadout, ViewPatterns
+from hippo_nav.engine import N_MODULES, CompactView, SpatialMemory, SpatialReadout, ViewPatterns
 from hippo_nav.geometry import lift_planar, planar_from_pose, se2_between, se2_compose
 from hippo_nav.io import DatasetError
 from hippo_nav.map import ClosureMode, new_experience_map
@@ -538,8 +538,8 @@ class Pipeline:
         self.record.snapshots[position] = {
             "frame_index": self.record.frames[position].frame_index,
             "hd": sm.hd_activity(),
-            "grid": [None if sm.config.lesioned[m] else sm.grid_activity(m) for m in range(3)],
-            "layer2": [None if sm.config.lesioned[m] else sm.grid_layer2(m) for m in range(3)],
+            "grid": [None if sm.config.lesioned[m] else sm.grid_activity(m) for m in range(N_MODULES)],
+            "layer2": [None if sm.config.lesioned[m] else sm.grid_layer2(m) for m in range(N_MODULES)],
             "place": sm.place_activity(),
             "k": [g.k for g in sm.config.grid],
             "nu_max": [g.nu_max for g in sm.config.grid],
@@ -564,7 +564,7 @@ class Pipeline:
                 robust_scale_chi2=cfg.robust_scale_chi2,
                 max_iterations=cfg.max_iterations,
             )
-        return {"method": cfg.method, **dict(report)}
+        return {"method": cfg.method, **report.as_dict()}
 
     def _finish(
         self,

@@ -45,10 +45,10 @@ from matplotlib.collections import LineCollection
 from matplotlib.colors import Colormap
 from matplotlib.figure import Figure
 
+from hippo_nav.engine.config import MODULE_NAMES, N_MODULES
 from hippo_nav.geometry import planar_from_pose
 
 DEFAULT_TORUS_PERIOD_M = 100.0
-MODULE_REGIONS = ("ventral", "intermediate", "dorsal")  # grid modules 0, 1, 2 (k = 1, 2, 4 by default)
 # The paper colour-codes rates "by the jet colormap from blue (zero) to red (high)"; kept for comparison.
 RATE_CMAP = "jet"
 UNVISITED_GREY = "0.88"
@@ -190,7 +190,7 @@ def _lesioned(ax: Axes, what: str) -> None:
 
 def neural_state_figure(snapshot: dict[str, Any], title: str) -> Figure:
     figure = _new_figure(16, 8)
-    axes = figure.subplots(2, 4)
+    axes = figure.subplots(2, N_MODULES + 1)
     hd = snapshot["hd"]
     nu = snapshot["hd_nu_max"]
     ax = axes[0, 0]
@@ -198,7 +198,7 @@ def neural_state_figure(snapshot: dict[str, Any], title: str) -> Figure:
     ax.set_title("HD-by-velocity ring")
     ax.set_xlabel("θ (deg)")
     ax.set_ylabel("ν (angular velocity axis)")
-    for m in range(3):
+    for m in range(N_MODULES):
         ax = axes[0, m + 1]
         act = snapshot["grid"][m]
         k = snapshot["k"][m]
@@ -213,7 +213,7 @@ def neural_state_figure(snapshot: dict[str, Any], title: str) -> Figure:
             ax.axvline(b * n - 0.5, color="white", lw=0.4)
         ax.set_xticks([])
         ax.set_yticks([])
-    for m in range(3):
+    for m in range(N_MODULES):
         ax = axes[1, m]
         pattern = snapshot["layer2"][m]
         k = snapshot["k"][m]
@@ -224,7 +224,7 @@ def neural_state_figure(snapshot: dict[str, Any], title: str) -> Figure:
         ax.imshow(pattern, origin="lower", cmap="viridis", extent=(0, 2 * np.pi, 0, 2 * np.pi))
         ax.set_xlabel("θx (rad)")
         ax.set_ylabel("θy (rad)")
-    ax = axes[1, 3]
+    ax = axes[1, N_MODULES]
     ax.imshow(snapshot["place"], origin="lower", cmap="viridis", extent=(0, 2 * np.pi, 0, 2 * np.pi))
     ax.set_title("CA3 place torus")
     ax.set_xlabel("θx (rad)")
@@ -303,7 +303,7 @@ def _networks(record: Any) -> list[tuple[str, int | None, str]]:
     else:
         ks = sorted(int(name.split("=")[1]) for name in record.unit_activity if name.startswith("grid k="))
     networks = [
-        (f"grid k={k}", k, f"grid k={k}" + (f" ({MODULE_REGIONS[m]})" if len(ks) == 3 else ""))
+        (f"grid k={k}", k, f"grid k={k}" + (f" ({MODULE_NAMES[m]})" if len(ks) == N_MODULES else ""))
         for m, k in enumerate(ks)
     ]
     return networks + [("place", None, "CA3 place")]
