@@ -31,7 +31,9 @@ test: test-rust test-python ## the whole test suite (what CI runs)
 
 bench: develop ## criterion and pytest-benchmark benchmarks
 	cargo bench --workspace
-	$(PY) -m pytest --benchmark-only --benchmark-enable tests/benchmarks
+	mkdir -p runs
+	$(PY) -m pytest --benchmark-only --benchmark-enable --benchmark-json=runs/bench.json tests/benchmarks
+	$(PY) tests/benchmarks/table.py runs/bench.json
 
 bench-gtsam: setup ## the pose-graph solver against GTSAM's LM, one table (installs the optional gtsam)
 	$(VENV)/bin/maturin develop --release --quiet --extras test,bench

@@ -21,7 +21,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from hippo_nav.pipeline.plots import MODULE_REGIONS, planar_xy
+from hippo_nav.engine.config import MODULE_NAMES
+from hippo_nav.pipeline.plots import planar_xy
 
 TWO_PI = 2.0 * np.pi
 
@@ -77,7 +78,7 @@ def neural_panels(engine: Any, readout: Any) -> list[NeuralPanel]:
     ]
     config = engine.config
     for m, grid in enumerate(config.grid):
-        region = f" ({MODULE_REGIONS[m]})" if len(config.grid) == len(MODULE_REGIONS) else ""
+        region = f" ({MODULE_NAMES[m]})" if len(config.grid) == len(MODULE_NAMES) else ""
         title = f"grid k={grid.k}{region}: layer II"
         name, label = f"layer2_k{grid.k}", f"grid k={grid.k} layer II"
         if config.lesioned[m]:

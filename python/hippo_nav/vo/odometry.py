@@ -2,20 +2,32 @@
 
 Per stereo frame k (rectified pair, camera x right, y down, z forward; docs/spec.md §9):
 
-1. Features: Shi–Tomasi corners in the left image, spread by a minimum distance.
-2. Stereo: each corner is tracked into the right image with pyramidal KLT, started at a typical
-   disparity, and back again (left–right consistency); a rectified pair allows only a small row error
-   and positive disparity. Depth `Z = fx · b / d` gives the corner's 3-D point in camera k.
-3. Temporal: the 3-D points of frame k−1 are projected into frame k with the motion prior (the last
-   step, constant velocity) and KLT-tracked from there, with a forward–backward check. The prediction
-   is what keeps 40 px image motion near facades trackable.
-4. Pose: PnP with RANSAC on (points of k−1, pixels in k) gives `camera_cur_from_camera_prev`; the
+1. Temporal: the points of frame k−1 (pixel + 3-D point) are projected into frame k with the motion prior
+   (the last step, constant velocity) and KLT-tracked from there, with a forward–backward check. The
+   prediction is what keeps 40 px image motion near facades trackable.
+2. Pose: PnP with RANSAC on (points of k−1, pixels in k) gives `camera_cur_from_camera_prev`; the
    inliers are refined with Levenberg–Marquardt, then by a joint Gauss–Newton fit of the reprojection
    error in *both* images of frame k (the right-image residual constrains depth along the baseline,
    which halves the translation error on forward motion).
+3. Stereo: each inlier is KLT-matched into the right image, started at the disparity the pose predicts,
+   and back (left–right consistency); a rectified pair allows only a small row error and a positive
+   disparity. These matches feed step 2's right-image residual, and their depth `Z = fx · b / d` is the
+   point's 3-D position in camera k: the inliers are carried into frame k+1 (feature tracking).
+4. New corners: where no carried point lies within the minimum distance, FAST corners (the strongest per
+   cell of a min-distance grid) top the frame up to `max_features`; they are stereo-matched like in step 3
+   but from a typical disparity (a point 20 m away), so on the full pyramid.
 5. Checks: too few tracked points or inliers (low texture, blur, a covered lens) or a step beyond the
-   plausible speed or turn makes the frame *flagged*: the motion prior stands in for the step and the
-   status says why, so the odometry never crashes or jumps on a bad frame.
+   plausible speed or turn makes the frame *flagged*: the motion prior stands in for the step, the
+   carried points are dropped (the next frame detects afresh) and the status says why, so the odometry
+   never crashes or jumps on a bad frame.
+
+Cost. KLT is almost all of it, and its cost is per point and per pyramid level (each level costs about one
+window's worth of work, whatever the start). So: a search from afar runs the levels above the image on
+the half-size images with a small window, then the full-resolution window on the image alone; a search
+whose start is known to a pixel (the backward checks, the right-image match at a predicted disparity) uses
+a short pyramid; carried points need no new detection nor a search from afar in the right image. OpenCV's
+Python binding does not take prebuilt pyramids (`buildOpticalFlowPyramid`'s output is refused by
+`calcOpticalFlowPyrLK` in OpenCV 5.0), but building them is a small part of a call.
 
 The step returned is `camera_prev_from_camera_cur` (4×4): the current camera's pose in the previous
 camera's frame, so `world_from_cur = world_from_prev @ step`. `planar_step` reduces it to the map's
@@ -25,6 +37,7 @@ camera's frame, so `world_from_cur = world_from_prev @ step`. `planar_step` redu
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal, NamedTuple
 
 import cv2
 import numpy as np
@@ -43,15 +56,43 @@ class VoParams(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    max_features: int = Field(1500, ge=8, description="corners detected per left image at most")
-    feature_quality: float = Field(0.005, gt=0.0, lt=1.0, description="Shi–Tomasi quality level")
+    max_features: int = Field(1000, ge=8, description="points per frame at most (tracked + new corners)")
+    corner_detector: Literal["fast", "shi_tomasi"] = Field(
+        "fast", description="new corners: FAST, strongest per min-distance cell; or Shi–Tomasi (slower)"
+    )
+    fast_threshold: int = Field(
+        10,
+        ge=1,
+        le=255,
+        description="FAST intensity threshold (gray levels); corners are then ranked by score",
+    )
+    feature_quality: float = Field(0.005, gt=0.0, lt=1.0, description="Shi–Tomasi quality level (shi_tomasi)")
     min_feature_distance_px: float = Field(7.0, gt=0.0, description="minimum distance between corners")
+    track_features: bool = Field(
+        True,
+        description="carry the inliers and their stereo depths into the next frame and detect corners only "
+        "where the image has none; False: detect and stereo-match every corner anew in each frame",
+    )
     klt_window_px: int | None = Field(
         None,
         ge=5,
-        description="KLT window side (odd); None: width/25 within 11–15 px (13 at 320 px, 15 on KITTI)",
+        description="KLT window side (odd) on the full image; None: width/25 within 11–15 px (13 at 320 px, "
+        "15 on KITTI)",
     )
     klt_levels: int = Field(4, ge=0, le=8, description="KLT pyramid levels above the image")
+    klt_coarse_window_px: int | None = Field(
+        9,
+        ge=5,
+        description="KLT window side (odd) on the pyramid levels above the image, which only bring a point "
+        "within reach of the full-resolution window; None: the full-resolution window",
+    )
+    klt_short_levels: int = Field(
+        1,
+        ge=0,
+        le=8,
+        description="KLT pyramid levels where the start is known to about a pixel: the backward check, "
+        "and the right-image match of a tracked point at the disparity its motion predicts",
+    )
     forward_backward_px: float = Field(1.0, gt=0.0, description="max forward–backward KLT error")
     stereo_row_tolerance_px: float = Field(1.5, gt=0.0, description="max row difference of a stereo match")
     min_disparity_px: float = Field(1.0, gt=0.0, description="nearer than fx·b/this: farther points dropped")
@@ -86,7 +127,7 @@ class VoStep:
     camera_prev_from_camera_cur: np.ndarray  # (4, 4) SE(3)
     status: str  # one of STATUSES
     dt_s: float  # time since the previous frame (0 on the first)
-    n_features: int  # stereo-matched corners of this frame (the points tracked into the next)
+    n_features: int  # stereo-matched points of this frame (the points tracked into the next)
     n_tracked: int  # points of the previous frame tracked into this one
     n_inliers: int  # PnP inliers
     reprojection_rmse_px: float  # of the inliers, after refinement (NaN when not measured)
@@ -111,12 +152,33 @@ def planar_velocities(camera_prev_from_camera_cur: np.ndarray, dt_s: float) -> t
     return yaw_rad / dt_s, speed_m / dt_s
 
 
+class _Image(NamedTuple):
+    """A gray image and its half-resolution copy (pixel (u, v) there is (u/2, v/2))."""
+
+    full: np.ndarray
+    half: np.ndarray
+
+
 @dataclass
 class _StereoPoints:
-    gray: np.ndarray  # left image
-    right: np.ndarray  # right image
+    left: _Image
     pixels: np.ndarray  # (n, 2) float32, left image
     points_m: np.ndarray  # (n, 3) float64, camera frame
+
+
+@dataclass
+class _Tracks:
+    """One tracking + PnP attempt: the pose (None when it failed), counts, and the inlier pairs."""
+
+    cur_from_prev: np.ndarray | None
+    n_tracked: int
+    n_inliers: int
+    object_points: np.ndarray | None = None  # (n, 3) inlier points of the previous frame
+    image_px: np.ndarray | None = None  # (n, 2) float32, where they are in the current left image
+
+
+_NO_PIXELS = np.zeros((0, 2), np.float32)
+_NO_POINTS = np.zeros((0, 3))
 
 
 class StereoOdometry:
@@ -134,13 +196,27 @@ class StereoOdometry:
                 f"calibration unusable for stereo VO: fx={self.fx}, fy={self.fy}, baseline={self.baseline_m} m "
                 "(need positive focal lengths and P1[0,3] = -fx·baseline < 0)"
             )
-        w = self.params.klt_window_px or int(np.clip(calibration.image_size_px[0] // 25, 11, 15))
-        w |= 1
-        self._klt = {
+        p = self.params
+        w = (p.klt_window_px or int(np.clip(calibration.image_size_px[0] // 25, 11, 15))) | 1
+        criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01)
+        # A KLT search from afar runs in two calls: the pyramid levels above the image on the half-size
+        # images with a small window (they only bring the point within reach), then the full-resolution
+        # window on the image alone. Each level costs about one window's worth of work, so this halves
+        # the cost of a point while the final estimate is still made by the full window.
+        self._klt_coarse = None
+        if p.klt_levels > 0:
+            wc = (p.klt_coarse_window_px or w) | 1
+            self._klt_coarse = {"winSize": (wc, wc), "maxLevel": p.klt_levels - 1, "criteria": criteria}
+        self._klt_fine = {"winSize": (w, w), "maxLevel": 0, "criteria": criteria}
+        self._klt_short = {
             "winSize": (w, w),
-            "maxLevel": self.params.klt_levels,
-            "criteria": (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01),
+            "maxLevel": min(p.klt_short_levels, p.klt_levels),
+            "criteria": criteria,
         }
+        self._yaw_window: np.ndarray | None = None
+        self._fast = cv2.FastFeatureDetector_create(p.fast_threshold, nonmaxSuppression=True)
+        r = int(np.ceil(p.min_feature_distance_px))
+        self._keep_out = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
         self.reset()
 
     def reset(self) -> None:
@@ -154,10 +230,10 @@ class StereoOdometry:
     # ------------------------------------------------------------------------------------------------
     def process(self, frame) -> VoStep:
         """The step from the previous frame to `frame` (identity with status "first" on the first)."""
-        left, right = self._check_images(frame)
-        current = self._stereo_points(left, right)
+        left, right = (_Image(image, cv2.pyrDown(image)) for image in self._check_images(frame))
         stamp = float(frame.timestamp_s)
         if self._previous is None:
+            current = self._stereo_points(left, right, _NO_PIXELS, _NO_POINTS)
             self._previous, self._previous_time_s = current, stamp
             return VoStep(np.eye(4), "first", 0.0, len(current.pixels), 0, 0, float("nan"))
         dt_s = stamp - float(self._previous_time_s)
@@ -168,13 +244,16 @@ class StereoOdometry:
             prior = np.eye(4)
         else:
             prior = _scale_step(self._prior_step, dt_s / self._prior_dt_s)
-        step, status, n_tracked, n_inliers, rmse = self._measure(self._previous, current, prior)
+        step, status, n_tracked, n_inliers, rmse, kept = self._measure(self._previous, left, right, prior)
         if status == "ok" and not self._plausible(step, dt_s):
             status = "rejected"
         if status != "ok":
             step = prior
         else:
             self._prior_step, self._prior_dt_s = step, dt_s
+        if status != "ok" or not self.params.track_features:
+            kept = (_NO_PIXELS, _NO_POINTS)  # detect afresh (after a bad frame the tracks are suspect too)
+        current = self._stereo_points(left, right, *kept)
         self._previous, self._previous_time_s = current, stamp
         return VoStep(step, status, dt_s, len(current.pixels), n_tracked, n_inliers, rmse)
 
@@ -200,48 +279,111 @@ class StereoOdometry:
             )
         return left, right
 
-    def _stereo_points(self, left: np.ndarray, right: np.ndarray) -> _StereoPoints:
+    def _stereo_points(
+        self, left: _Image, right: _Image, kept_px: np.ndarray, kept_m: np.ndarray
+    ) -> _StereoPoints:
+        """This frame's points: those kept from tracking, plus new corners where the image has none."""
         p = self.params
-        corners = cv2.goodFeaturesToTrack(
-            left, p.max_features, p.feature_quality, p.min_feature_distance_px, blockSize=5
-        )
-        empty = _StereoPoints(left, right, np.zeros((0, 2), np.float32), np.zeros((0, 3)))
-        if corners is None:
-            return empty
-        pts = corners.reshape(-1, 2).astype(np.float32)
-        guess = pts.copy()
+        corners = self._detect(left.full, p.max_features - len(kept_px), kept_px)
+        if len(corners) == 0:
+            return _StereoPoints(left, kept_px, kept_m)
+        guess = corners.copy()
         guess[:, 0] -= self.fx * self.baseline_m / p.stereo_guess_depth_m
-        in_right, ok, _ = cv2.calcOpticalFlowPyrLK(
-            left, right, pts, guess, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._klt
+        in_right, found = self._track(left, right, corners, guess)
+        keep, disparity = self._stereo_check(left, right, corners, in_right, found)
+        pixels = np.concatenate([kept_px, corners[keep]])
+        points_m = np.concatenate([kept_m, self._triangulate(corners[keep], disparity[keep])])
+        return _StereoPoints(left, pixels, points_m)
+
+    def _detect(self, image: np.ndarray, wanted: int, kept_px: np.ndarray) -> np.ndarray:
+        """(n ≤ wanted, 2) float32: new corners, `min_feature_distance_px` apart and as far from kept points."""
+        p = self.params
+        if wanted <= 0:
+            return _NO_PIXELS
+        mask = None
+        if len(kept_px):
+            mask = np.full(image.shape, 255, np.uint8)
+            xy = np.clip(np.rint(kept_px).astype(int), 0, [image.shape[1] - 1, image.shape[0] - 1])
+            mask[xy[:, 1], xy[:, 0]] = 0
+            mask = cv2.erode(mask, self._keep_out)
+        if p.corner_detector == "shi_tomasi":
+            corners = cv2.goodFeaturesToTrack(
+                image, wanted, p.feature_quality, p.min_feature_distance_px, mask=mask, blockSize=5
+            )
+            return _NO_PIXELS if corners is None else corners.reshape(-1, 2).astype(np.float32)
+        keypoints = self._fast.detect(image, mask)
+        if not keypoints:
+            return _NO_PIXELS
+        xy = cv2.KeyPoint_convert(keypoints)
+        score = np.array([k.response for k in keypoints], np.float32)
+        # The strongest corner of each cell of a min-distance grid, strongest cells first.
+        side = p.min_feature_distance_px
+        cell = (xy[:, 1] // side).astype(np.int64) * (int(image.shape[1] // side) + 1) + (
+            xy[:, 0] // side
+        ).astype(np.int64)
+        order = np.lexsort((-score, cell))
+        best_of_cell = order[np.r_[True, cell[order][1:] != cell[order][:-1]]]
+        return xy[best_of_cell[np.argsort(-score[best_of_cell], kind="stable")[:wanted]]]
+
+    def _track(
+        self, a: _Image, b: _Image, pts: np.ndarray, guess: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(positions in `b`, found) of `pts` of `a` by pyramidal KLT started at `guess` (coarse, then fine)."""
+        if len(pts) == 0:
+            return guess, np.zeros(0, bool)
+        found = np.ones(len(pts), bool)
+        if self._klt_coarse is not None:
+            coarse, ok, _ = cv2.calcOpticalFlowPyrLK(
+                a.half, b.half, pts * 0.5, guess * 0.5, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._klt_coarse
+            )
+            guess, found = coarse * 2.0, ok.ravel() == 1
+        tracked, ok, _ = cv2.calcOpticalFlowPyrLK(
+            a.full, b.full, pts, guess, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._klt_fine
         )
-        back, ok_back, _ = cv2.calcOpticalFlowPyrLK(
-            right, left, in_right, pts.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._klt
+        return tracked, found & (ok.ravel() == 1)
+
+    def _track_back(self, b: np.ndarray, a: np.ndarray, tracked: np.ndarray, pts: np.ndarray) -> np.ndarray:
+        """Forward–backward check: KLT from the tracked positions in `b` back into `a`, started at the
+        original points (a short pyramid: a good track comes back to where it began)."""
+        if len(pts) == 0:
+            return np.zeros(0, bool)
+        back, ok, _ = cv2.calcOpticalFlowPyrLK(
+            b, a, tracked, pts.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._klt_short
         )
+        return (ok.ravel() == 1) & (np.linalg.norm(back - pts, axis=1) < self.params.forward_backward_px)
+
+    def _stereo_check(
+        self, left: _Image, right: _Image, pts: np.ndarray, in_right: np.ndarray, found: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(matched mask, disparity px) of left pixels and their KLT positions in the right image: back
+        into the left (left–right consistency), a small row error and a positive disparity."""
+        p = self.params
         disparity = pts[:, 0] - in_right[:, 0]
         keep = (
-            (ok.ravel() == 1)
-            & (ok_back.ravel() == 1)
-            & (np.linalg.norm(back - pts, axis=1) < p.forward_backward_px)
+            found
             & (np.abs(in_right[:, 1] - pts[:, 1]) < p.stereo_row_tolerance_px)
             & (disparity > p.min_disparity_px)
         )
-        if not keep.any():
-            return empty
-        pts, disparity = pts[keep], disparity[keep].astype(np.float64)
-        z = self.fx * self.baseline_m / disparity
+        keep[keep] = self._track_back(right.full, left.full, in_right[keep], pts[keep])
+        return keep, disparity
+
+    def _triangulate(self, pts: np.ndarray, disparity_px: np.ndarray) -> np.ndarray:
+        z = self.fx * self.baseline_m / disparity_px.astype(np.float64)
         x = (pts[:, 0] - self.cx) * z / self.fx
         y = (pts[:, 1] - self.cy) * z / self.fy
-        return _StereoPoints(left, right, pts, np.column_stack([x, y, z]))
+        return np.column_stack([x, y, z])
 
-    def _measure(self, prev: _StereoPoints, cur: _StereoPoints, prior: np.ndarray):
-        """(step, status, n_tracked, n_inliers, rmse) from tracking `prev`'s points into `cur`.
+    def _measure(self, prev: _StereoPoints, left: _Image, right: _Image, prior: np.ndarray):
+        """(step, status, n_tracked, n_inliers, rmse, kept) from tracking `prev`'s points into `left`.
 
-        A sudden change of motion (a car turning into a corner) makes the prior's prediction wrong by
-        tens of pixels, and KLT started there can settle on a consistent but wrong set of matches in
-        repetitive texture; so several motion hypotheses are tried in turn (see below)."""
+        `kept` = (pixels, points_m) of the inliers that also matched in `right`: the points this frame
+        carries on. A sudden change of motion (a car turning into a corner) makes the prior's prediction
+        wrong by tens of pixels, and KLT started there can settle on a consistent but wrong set of matches
+        in repetitive texture; so several motion hypotheses are tried in turn (see below)."""
         p = self.params
+        failed = (prior, "low_texture", 0, 0, float("nan"), (_NO_PIXELS, _NO_POINTS))
         if len(prev.pixels) < p.min_inliers:
-            return (prior, "low_texture", 0, 0, float("nan"))
+            return failed
         # Hypotheses for where the points went, tried in turn until most tracks agree with the PnP
         # solution (else the one with most inliers wins): the motion prior; a turn by the image's
         # global horizontal shift (phase correlation; a car entering a corner turns faster than the
@@ -249,54 +391,75 @@ class StereoOdometry:
         speed_m = float(np.linalg.norm(prior[:3, 3]))
         hypotheses = (
             lambda: prior,
-            lambda: _planar_motion(speed_m, self._image_yaw_rad(prev.gray, cur.gray)),
+            lambda: _planar_motion(speed_m, self._image_yaw_rad(prev.left.half, left.half)),
             lambda: _planar_motion(speed_m, 0.0),
             lambda: np.eye(4),
         )
         best = None
         for hypothesis in hypotheses:
-            cur_from_prev = np.linalg.inv(hypothesis())
-            predicted = self._project(prev.points_m, cur_from_prev)
-            guess = np.where(predicted[:, 2:] > 0, predicted[:, :2], prev.pixels).astype(np.float32)
-            outcome = self._solve(prev, cur, guess, cur_from_prev)
-            if best is None or outcome[2] > best[2]:
+            outcome = self._track_and_pnp(prev, left, np.linalg.inv(hypothesis()))
+            if best is None or outcome.n_inliers > best.n_inliers:
                 best = outcome
-            if outcome[2] >= p.min_inliers and outcome[2] >= p.min_inlier_ratio * outcome[1]:
+            if (
+                outcome.n_inliers >= p.min_inliers
+                and outcome.n_inliers >= p.min_inlier_ratio * outcome.n_tracked
+            ):
                 break
-        solution, n_tracked, n_inliers = best
-        if solution is None or n_inliers < p.min_inliers or n_inliers < p.min_accept_ratio * n_tracked:
-            return (prior, "low_texture", n_tracked, n_inliers, float("nan"))
-        cur_from_prev, rmse = solution
-        return (np.linalg.inv(cur_from_prev), "ok", n_tracked, n_inliers, rmse)
+        if (
+            best.cur_from_prev is None
+            or best.n_inliers < p.min_inliers
+            or best.n_inliers < p.min_accept_ratio * best.n_tracked
+        ):
+            return (*failed[:2], best.n_tracked, best.n_inliers, *failed[4:])
+        object_points, image_px = best.object_points, best.image_px
+        rvec, _ = cv2.Rodrigues(best.cur_from_prev[:3, :3])
+        tvec = best.cur_from_prev[:3, 3].reshape(3, 1).copy()
+        rvec, tvec = cv2.solvePnPRefineLM(
+            object_points, image_px.astype(np.float64), self.K, None, rvec, tvec
+        )
+        cur_from_prev = np.eye(4)
+        cur_from_prev[:3, :3] = cv2.Rodrigues(rvec)[0]
+        cur_from_prev[:3, 3] = tvec.ravel()
+        # The inliers' right-image positions, KLT started at the disparity the pose predicts: they refine
+        # the step and give the depths the points carry into the next frame.
+        predicted_z = self._project(object_points, cur_from_prev)[:, 2]
+        guess = image_px.copy()
+        guess[:, 0] -= (self.fx * self.baseline_m / np.maximum(predicted_z, 1e-3)).astype(np.float32)
+        in_right, ok, _ = cv2.calcOpticalFlowPyrLK(
+            left.full, right.full, image_px, guess, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._klt_short
+        )
+        has_right, disparity = self._stereo_check(left, right, image_px, in_right, ok.ravel() == 1)
+        if p.stereo_refinement:
+            cur_from_prev = self._refine_stereo(cur_from_prev, object_points, image_px, in_right, has_right)
+        rmse = self._rmse(cur_from_prev, object_points, image_px.astype(np.float64))
+        kept = (image_px[has_right], self._triangulate(image_px[has_right], disparity[has_right]))
+        return (np.linalg.inv(cur_from_prev), "ok", best.n_tracked, best.n_inliers, rmse, kept)
 
-    def _solve(self, prev: _StereoPoints, cur: _StereoPoints, guess: np.ndarray, cur_from_prev: np.ndarray):
-        """((cur_from_prev, rmse) or None, n_tracked, n_inliers) for one initial flow hypothesis."""
+    def _track_and_pnp(self, prev: _StereoPoints, left: _Image, cur_from_prev: np.ndarray) -> _Tracks:
+        """KLT of `prev`'s points started where `cur_from_prev` puts them, with a forward–backward check,
+        then PnP RANSAC: the pose and its inliers."""
         p = self.params
-        tracked, ok, _ = cv2.calcOpticalFlowPyrLK(
-            prev.gray, cur.gray, prev.pixels, guess, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._klt
-        )
-        back, ok_back, _ = cv2.calcOpticalFlowPyrLK(
-            cur.gray, prev.gray, tracked, prev.pixels.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._klt
-        )
-        h, w = cur.gray.shape
+        predicted = self._project(prev.points_m, cur_from_prev)
+        guess = np.where(predicted[:, 2:] > 0, predicted[:, :2], prev.pixels).astype(np.float32)
+        tracked, found = self._track(prev.left, left, prev.pixels, guess)
+        h, w = left.full.shape
         good = (
-            (ok.ravel() == 1)
-            & (ok_back.ravel() == 1)
-            & (np.linalg.norm(back - prev.pixels, axis=1) < p.forward_backward_px)
+            found
             & (tracked[:, 0] >= 0)
             & (tracked[:, 0] <= w - 1)
             & (tracked[:, 1] >= 0)
             & (tracked[:, 1] <= h - 1)
         )
+        good[good] = self._track_back(left.full, prev.left.full, tracked[good], prev.pixels[good])
         n_tracked = int(good.sum())
         if n_tracked < p.min_inliers:
-            return (None, n_tracked, 0)
+            return _Tracks(None, n_tracked, 0)
         object_points = prev.points_m[good]
-        image_points = tracked[good].astype(np.float64)
+        image_px = tracked[good]
         rvec0, _ = cv2.Rodrigues(cur_from_prev[:3, :3])
-        found, rvec, tvec, inliers = cv2.solvePnPRansac(
+        found_pose, rvec, tvec, inliers = cv2.solvePnPRansac(
             object_points,
-            image_points,
+            image_px.astype(np.float64),
             self.K,
             None,
             rvec=rvec0.copy(),
@@ -308,92 +471,63 @@ class StereoOdometry:
             flags=cv2.SOLVEPNP_ITERATIVE,
         )
         n_inliers = 0 if inliers is None else len(inliers)
-        if not found or n_inliers < 6:
-            return (None, n_tracked, n_inliers)
+        if not found_pose or n_inliers < 6:
+            return _Tracks(None, n_tracked, n_inliers)
         idx = inliers.ravel()
-        rvec, tvec = cv2.solvePnPRefineLM(object_points[idx], image_points[idx], self.K, None, rvec, tvec)
-        transform = np.eye(4)
-        transform[:3, :3] = cv2.Rodrigues(rvec)[0]
-        transform[:3, 3] = tvec.ravel()
-        if p.stereo_refinement:
-            transform = self._refine_stereo(transform, object_points[idx], tracked[good][idx], cur)
-        rmse = self._rmse(transform, object_points[idx], image_points[idx])
-        return ((transform, rmse), n_tracked, n_inliers)
+        pose = np.eye(4)
+        pose[:3, :3] = cv2.Rodrigues(rvec)[0]
+        pose[:3, 3] = tvec.ravel()
+        return _Tracks(pose, n_tracked, n_inliers, object_points[idx], image_px[idx])
 
-    def _image_yaw_rad(self, prev_gray: np.ndarray, cur_gray: np.ndarray) -> float:
-        """Yaw (left positive) that explains the global horizontal image shift between two frames."""
-        window = cv2.createHanningWindow(prev_gray.shape[::-1], cv2.CV_32F)
+    def _image_yaw_rad(self, prev_half: np.ndarray, cur_half: np.ndarray) -> float:
+        """Yaw (left positive) that explains the global horizontal image shift between two frames.
+
+        Measured on the half-size images, halved again while wider than 320 px: a KLT start needs the
+        shift to a pixel or two, not to a tenth."""
+        factor = 2
+        while prev_half.shape[1] > 320:
+            prev_half, cur_half, factor = cv2.pyrDown(prev_half), cv2.pyrDown(cur_half), factor * 2
+        if self._yaw_window is None or self._yaw_window.shape != prev_half.shape:
+            self._yaw_window = cv2.createHanningWindow(prev_half.shape[::-1], cv2.CV_32F)
         (shift_px, _), _ = cv2.phaseCorrelate(
-            prev_gray.astype(np.float32), cur_gray.astype(np.float32), window
+            prev_half.astype(np.float32), cur_half.astype(np.float32), self._yaw_window
         )
         # A left turn moves the scene right (positive shift).
-        return float(np.arctan2(shift_px, self.fx))
+        return float(np.arctan2(shift_px * factor, self.fx))
 
     def _refine_stereo(
-        self, cur_from_prev: np.ndarray, points_m: np.ndarray, left_px: np.ndarray, cur: _StereoPoints
+        self,
+        cur_from_prev: np.ndarray,
+        points_m: np.ndarray,
+        left_px: np.ndarray,
+        right_px: np.ndarray,
+        has_right: np.ndarray,
     ) -> np.ndarray:
         """Gauss–Newton on left + right reprojection in the current frame.
 
-        The right-image position of each tracked point is found by KLT from its left position (started at
-        the disparity the current estimate predicts); points without a consistent right match keep only
-        their left residual. Robust (Huber) weights keep a few bad tracks from pulling the step."""
-        p = self.params
-        predicted = self._project(points_m, cur_from_prev)
-        disparity_guess = self.fx * self.baseline_m / np.maximum(predicted[:, 2], 1e-3)
-        start = left_px.astype(np.float32)
-        guess = start.copy()
-        guess[:, 0] -= disparity_guess.astype(np.float32)
-        in_right, ok, _ = cv2.calcOpticalFlowPyrLK(
-            cur.gray, cur.right, start, guess, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._klt
-        )
-        has_right = (
-            (ok.ravel() == 1)
-            & (np.abs(in_right[:, 1] - start[:, 1]) < p.stereo_row_tolerance_px)
-            & (start[:, 0] - in_right[:, 0] > p.min_disparity_px)
-        )
+        Points without a consistent right match (`has_right` false) keep only their left residual.
+        Robust (Huber) weights keep a few bad tracks from pulling the step."""
+        huber_px = self.params.ransac_reprojection_px
+        left_obs = left_px.astype(np.float64)
+        right_u = right_px[has_right, 0].astype(np.float64)
         transform = cur_from_prev.copy()
-        huber_px = p.ransac_reprojection_px
         for _ in range(5):
             x = points_m @ transform[:3, :3].T + transform[:3, 3]
-            z = x[:, 2]
-            if (z <= 0).any():
+            if (x[:, 2] <= 0).any():
                 return cur_from_prev
-            residuals, jacobians = [], []
-            for offset_m, observed, mask in (
-                (0.0, left_px.astype(np.float64), np.ones(len(x), bool)),
-                (self.baseline_m, in_right.astype(np.float64), has_right),
-            ):
-                xs = x[mask] - np.array([offset_m, 0.0, 0.0])
-                zs = xs[:, 2]
-                u = self.fx * xs[:, 0] / zs + self.cx
-                v = self.fy * xs[:, 1] / zs + self.cy
-                r = np.column_stack([u, v]) - observed[mask]
-                # d(u, v)/d(point in camera), then the point's derivative for a left perturbation
-                # δ = (ω, τ): d x = −[x]× ω + τ (x the point in the current *left* frame).
-                du = np.zeros((len(xs), 2, 3))
-                du[:, 0, 0] = self.fx / zs
-                du[:, 0, 2] = -self.fx * xs[:, 0] / zs**2
-                du[:, 1, 1] = self.fy / zs
-                du[:, 1, 2] = -self.fy * xs[:, 1] / zs**2
-                xm = x[mask]
-                dx = np.zeros((len(xs), 3, 6))
-                dx[:, :, :3] = -_skew(xm)
-                dx[:, :, 3:] = np.eye(3)
-                j = du @ dx
-                if offset_m > 0:
-                    # Right image: only u (the disparity) is new; its v repeats the left one, plus
-                    # whatever row offset the rectification left, which would tilt the pitch.
-                    r, j = r[:, :1], j[:, :1]
-                residuals.append(r.reshape(-1))
-                jacobians.append(j.reshape(-1, 6))
-            r = np.concatenate(residuals)  # (m,) pixel residuals
-            jac = np.concatenate(jacobians)  # (m, 6)
+            # The right image adds only u (the disparity): its v repeats the left one, plus whatever
+            # row offset the rectification left, which would tilt the pitch.
+            rows = (
+                self._pixel_rows(x, 0.0, 0, left_obs[:, 0]),
+                self._pixel_rows(x, 0.0, 1, left_obs[:, 1]),
+                self._pixel_rows(x[has_right], self.baseline_m, 0, right_u),
+            )
+            r = np.concatenate([row[0] for row in rows])
+            jac = np.concatenate([row[1] for row in rows])
             weight = np.where(np.abs(r) <= huber_px, 1.0, huber_px / np.maximum(np.abs(r), 1e-12))
             jw = jac * weight[:, None]
-            hessian = jw.T @ jac
-            gradient = jw.T @ r
             try:
-                delta = -np.linalg.solve(hessian, gradient)
+                delta = -np.linalg.solve(jw.T @ jac, jw.T @ r)
             except np.linalg.LinAlgError:
                 return cur_from_prev
             update = np.eye(4)
@@ -403,6 +537,32 @@ class StereoOdometry:
             if np.linalg.norm(delta) < 1e-9:
                 break
         return transform
+
+    def _pixel_rows(
+        self, x: np.ndarray, offset_m: float, axis: int, observed: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """(residuals (n,), Jacobian (n, 6)) of pixel coordinate `axis` (0: u, 1: v) of points `x` (current
+        left camera frame) seen by a camera `offset_m` to its right, for a left perturbation δ = (ω, τ)
+        of the pose: the point moves by dx = ω × x + τ, and u = fx·(x − offset)/z + cx by
+        du = fx/z·dx − fx·(x − offset)/z²·dz (v likewise with fy, y)."""
+        focal, centre = (self.fx, self.cx) if axis == 0 else (self.fy, self.cy)
+        a = x[:, axis] - (offset_m if axis == 0 else 0.0)
+        z = x[:, 2]
+        d_a, d_z = focal / z, -focal * a / z**2
+        jac = np.empty((len(x), 6))
+        # ω × x = (ω_y·z − ω_z·y, ω_z·x − ω_x·z, ω_x·y − ω_y·x)
+        if axis == 0:
+            jac[:, 0] = d_z * x[:, 1]
+            jac[:, 1] = d_a * z - d_z * x[:, 0]
+            jac[:, 2] = -d_a * x[:, 1]
+            jac[:, 3], jac[:, 4] = d_a, 0.0
+        else:
+            jac[:, 0] = -d_a * z + d_z * x[:, 1]
+            jac[:, 1] = -d_z * x[:, 0]
+            jac[:, 2] = d_a * x[:, 0]
+            jac[:, 3], jac[:, 4] = 0.0, d_a
+        jac[:, 5] = d_z
+        return focal * a / z + centre - observed, jac
 
     def _project(self, points_m: np.ndarray, cur_from_prev: np.ndarray) -> np.ndarray:
         """(n, 3): pixel u, v and depth of points of the previous camera seen from the current one."""
