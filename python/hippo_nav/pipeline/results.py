@@ -247,6 +247,10 @@ def timing(record: RunRecord) -> dict[str, Any]:
     }
 
 
+def _finite_or_none(value: Any) -> float | None:
+    return float(value) if value is not None and np.isfinite(value) else None
+
+
 def evaluate(
     pipeline: Pipeline, result: RunResult, correction: dict[str, Any], stopped_by: str | None
 ) -> dict:
@@ -290,7 +294,9 @@ def evaluate(
         "vo_status_counts": dict(sorted(vo_statuses.items())),
         "motion_flags": int(sum(f != "ok" for f in record.column("motion_flag"))),
         "data": {
-            "warnings": list(getattr(pipeline.dataset, "warnings", [])),
+            "warnings": list(getattr(pipeline.dataset, "warnings", []))
+            + list(getattr(pipeline.odometry, "warnings", [])),
+            "stereo_bias_px": _finite_or_none(getattr(pipeline.odometry, "stereo_bias_px", None)),
             "missing_frames": len(getattr(pipeline.dataset, "missing_frames", [])),
             "frames_without_timestamp": int(getattr(pipeline.dataset, "frames_without_timestamp", 0)),
             "frames_after_skipped_frames": sum("skipped_frames" in f for f in record.column("data_flags")),

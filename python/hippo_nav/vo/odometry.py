@@ -36,6 +36,8 @@ camera's frame, so `world_from_cur = world_from_prev @ step`. `planar_step` redu
 
 from __future__ import annotations
 
+import logging
+from collections import deque
 from dataclasses import dataclass
 from typing import Literal, NamedTuple
 
@@ -45,6 +47,8 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from hippo_nav._core import HippoNavError
 from hippo_nav.geometry import planar_step
+
+log = logging.getLogger("hippo_nav.vo")
 
 STATUSES = ("first", "ok", "low_texture", "rejected")
 """`VoStep.status`: first frame (identity); a measured step; too few features, tracks or inliers (prior
@@ -108,6 +112,23 @@ class VoParams(BaseModel):
         0.4, ge=0.0, le=1.0, description="below this inlier share the step is not trusted (prior used)"
     )
     stereo_refinement: bool = Field(True, description="refine the step on left and right reprojections")
+    disparity_offset_px: float = Field(
+        0.0,
+        ge=-5.0,
+        le=5.0,
+        description="added to every measured disparity: corrects a stereo pair whose right image is "
+        "shifted against its calibration (KITTI 01's shared frames need about +1 px); see "
+        "`stereo_bias_px` and the warning it raises",
+    )
+    stereo_bias_window: int = Field(
+        50, ge=5, description="well-tracked frames over which the stereo bias (`stereo_bias_px`) is judged"
+    )
+    stereo_bias_warn_px: float = Field(
+        0.03,
+        gt=0.0,
+        description="warn when the median disparity residual over `stereo_bias_window` frames exceeds this "
+        "(a consistent calibration gives < 0.01 px; a 1 px offset about 0.05–0.08 px)",
+    )
     max_speed_m_s: float = Field(60.0, gt=0.0, description="a faster step is rejected (prior used)")
     max_yaw_rate_rad_s: float = Field(3.0, gt=0.0, description="a faster turn is rejected (prior used)")
     seed: int = Field(0, description="seeds OpenCV's RNG (RANSAC) on reset, so runs are repeatable")
@@ -226,6 +247,8 @@ class StereoOdometry:
         self._previous_time_s: float | None = None
         self._prior_step = np.eye(4)  # camera_prev_from_camera_cur of the last good frame
         self._prior_dt_s = self.params.default_dt_s
+        self._disparity_residuals_px: deque[float] = deque(maxlen=self.params.stereo_bias_window)
+        self.warnings: list[str] = []
 
     # ------------------------------------------------------------------------------------------------
     def process(self, frame) -> VoStep:
@@ -288,7 +311,7 @@ class StereoOdometry:
         if len(corners) == 0:
             return _StereoPoints(left, kept_px, kept_m)
         guess = corners.copy()
-        guess[:, 0] -= self.fx * self.baseline_m / p.stereo_guess_depth_m
+        guess[:, 0] -= self.fx * self.baseline_m / p.stereo_guess_depth_m - p.disparity_offset_px
         in_right, found = self._track(left, right, corners, guess)
         keep, disparity = self._stereo_check(left, right, corners, in_right, found)
         pixels = np.concatenate([kept_px, corners[keep]])
@@ -358,7 +381,7 @@ class StereoOdometry:
         """(matched mask, disparity px) of left pixels and their KLT positions in the right image: back
         into the left (left–right consistency), a small row error and a positive disparity."""
         p = self.params
-        disparity = pts[:, 0] - in_right[:, 0]
+        disparity = pts[:, 0] - in_right[:, 0] + p.disparity_offset_px
         keep = (
             found
             & (np.abs(in_right[:, 1] - pts[:, 1]) < p.stereo_row_tolerance_px)
@@ -424,13 +447,15 @@ class StereoOdometry:
         # the step and give the depths the points carry into the next frame.
         predicted_z = self._project(object_points, cur_from_prev)[:, 2]
         guess = image_px.copy()
-        guess[:, 0] -= (self.fx * self.baseline_m / np.maximum(predicted_z, 1e-3)).astype(np.float32)
+        predicted_disparity = self.fx * self.baseline_m / np.maximum(predicted_z, 1e-3)
+        guess[:, 0] -= (predicted_disparity - p.disparity_offset_px).astype(np.float32)
         in_right, ok, _ = cv2.calcOpticalFlowPyrLK(
             left.full, right.full, image_px, guess, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._klt_short
         )
         has_right, disparity = self._stereo_check(left, right, image_px, in_right, ok.ravel() == 1)
         if p.stereo_refinement:
             cur_from_prev = self._refine_stereo(cur_from_prev, object_points, image_px, in_right, has_right)
+        self._judge_stereo_bias(cur_from_prev, object_points, disparity, has_right)
         rmse = self._rmse(cur_from_prev, object_points, image_px.astype(np.float64))
         kept = (image_px[has_right], self._triangulate(image_px[has_right], disparity[has_right]))
         return (np.linalg.inv(cur_from_prev), "ok", best.n_tracked, best.n_inliers, rmse, kept)
@@ -479,6 +504,44 @@ class StereoOdometry:
         pose[:3, 3] = tvec.ravel()
         return _Tracks(pose, n_tracked, n_inliers, object_points[idx], image_px[idx])
 
+    @property
+    def stereo_bias_px(self) -> float:
+        """Median, over the last `stereo_bias_window` well-tracked frames, of each frame's median disparity
+        residual (predicted by the step from the previous frame's points, minus measured), px; NaN before
+        the window fills. A right image shifted against its calibration makes the points' depths wrong in
+        a way no rigid step explains: on KITTI-size images a 1 px disparity shortfall gives about −0.06 px,
+        a consistent pair < 0.01 px. Negative: measured disparities too large for the motion."""
+        if len(self._disparity_residuals_px) < self.params.stereo_bias_window:
+            return float("nan")
+        return float(np.median(self._disparity_residuals_px))
+
+    def _judge_stereo_bias(
+        self, cur_from_prev: np.ndarray, points_m: np.ndarray, disparity_px: np.ndarray, has_right: np.ndarray
+    ) -> None:
+        """Record this frame's disparity residual; warn once when the stereo pair looks biased."""
+        p = self.params
+        if has_right.sum() < p.min_inliers:
+            return
+        z_m = (points_m[has_right] @ cur_from_prev[2, :3]) + cur_from_prev[2, 3]
+        if (z_m <= 0).any():
+            return
+        residual = self.fx * self.baseline_m / z_m - disparity_px[has_right]
+        self._disparity_residuals_px.append(float(np.median(residual)))
+        bias = self.stereo_bias_px
+        if not self.warnings and np.isfinite(bias) and abs(bias) > p.stereo_bias_warn_px:
+            # Measured on shifted images: a disparity shortfall (right image shifted right) gives a
+            # negative residual, an excess a positive one.
+            sign = "positive" if bias < 0 else "negative"
+            message = (
+                f"the stereo pair looks biased: over {p.stereo_bias_window} frames the measured disparities "
+                f"disagree with the motion (median residual {bias:+.3f} px, beyond ±{p.stereo_bias_warn_px} px; "
+                f"a consistent calibration gives about 0.01 px), so the odometry's scale is off and depends on depth. Check "
+                f"the calibration's baseline and rectification, or try a {sign} vo.disparity_offset_px "
+                f"(this residual is what a disparity {'shortfall' if bias < 0 else 'excess'} gives)"
+            )
+            self.warnings.append(message)
+            log.warning("%s", message)
+
     def _image_yaw_rad(self, prev_half: np.ndarray, cur_half: np.ndarray) -> float:
         """Yaw (left positive) that explains the global horizontal image shift between two frames.
 
@@ -509,7 +572,7 @@ class StereoOdometry:
         Robust (Huber) weights keep a few bad tracks from pulling the step."""
         huber_px = self.params.ransac_reprojection_px
         left_obs = left_px.astype(np.float64)
-        right_u = right_px[has_right, 0].astype(np.float64)
+        right_u = right_px[has_right, 0].astype(np.float64) - self.params.disparity_offset_px
         transform = cur_from_prev.copy()
         for _ in range(5):
             x = points_m @ transform[:3, :3].T + transform[:3, 3]
