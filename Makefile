@@ -39,7 +39,10 @@ bench-gtsam: setup ## the pose-graph solver against GTSAM's LM, one table (insta
 	$(VENV)/bin/maturin develop --release --quiet --extras test,bench
 	$(PY) tests/benchmarks/posegraph_vs_gtsam.py
 
-lint: develop ## formatting and lints
+lint: develop ## formatting, lints, type checks and the stub check (CI runs it before the tests)
 	cargo fmt --all -- --check
 	cargo clippy --workspace --all-targets -- -D warnings
 	$(VENV)/bin/ruff check python tests
+	$(VENV)/bin/ruff format --check python tests
+	$(PY) -m mypy
+	$(PY) -m mypy.stubtest hippo_nav._core

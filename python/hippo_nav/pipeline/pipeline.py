@@ -42,13 +42,13 @@ from collections.abc import Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol, Self
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 
 from hippo_nav._core import HippoNavError
 from hippo_nav.closure import Keyframe, KeyframeExtractor, LoopMeasurer
-from hippo_nav.datasets.base import StereoFrame
+from hippo_nav.datasets.base import StereoDataset, StereoFrame
 from hippo_nav.engine import N_MODULES, CompactView, SpatialMemory, SpatialReadout, ViewPatterns
 from hippo_nav.geometry import lift_planar, planar_from_pose, se2_between, se2_compose
 from hippo_nav.io import DatasetError
@@ -57,6 +57,9 @@ from hippo_nav.pipeline.config import PipelineConfig
 from hippo_nav.pipeline.frontend import Odometry, ViewCellFrontEnd, make_odometry, make_view_cells
 from hippo_nav.pipeline.records import STAGES, FrameRecord, RunRecord, RunResult
 from hippo_nav.vo import planar_step
+
+if TYPE_CHECKING:
+    from typing_extensions import Self
 
 log = logging.getLogger("hippo_nav.pipeline")
 
@@ -99,7 +102,7 @@ class Pipeline:
 
     def __init__(
         self,
-        dataset: Any,
+        dataset: StereoDataset,
         config: PipelineConfig | None = None,
         progress: bool = False,
         *,

@@ -21,6 +21,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from hippo_nav.datasets.base import StereoDataset
 from hippo_nav.engine.config import MODULE_NAMES
 from hippo_nav.pipeline.plots import planar_xy
 
@@ -173,7 +174,7 @@ def view_cell_label(record: Any) -> str:
 # The map and the tracks
 
 
-def ground_truth_xy(dataset: Any) -> np.ndarray | None:
+def ground_truth_xy(dataset: StereoDataset) -> np.ndarray | None:
     """(n, 2) map-frame positions of the dataset's ground truth, rebased on its first frame like the
     results' `ground_truth`; None without one."""
     gt = dataset.ground_truth()

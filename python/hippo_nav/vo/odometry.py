@@ -259,7 +259,7 @@ class StereoOdometry:
             current = self._stereo_points(left, right, _NO_PIXELS, _NO_POINTS)
             self._previous, self._previous_time_s = current, stamp
             return VoStep(np.eye(4), "first", 0.0, len(current.pixels), 0, 0, float("nan"))
-        dt_s = stamp - float(self._previous_time_s)
+        dt_s = stamp - float(self._previous_time_s or 0.0)
         if not (np.isfinite(dt_s) and dt_s > 0):
             dt_s = self.params.default_dt_s
         # The prior scaled to this frame interval (constant velocity through a dropped frame).
@@ -418,7 +418,7 @@ class StereoOdometry:
             lambda: _planar_motion(speed_m, 0.0),
             lambda: np.eye(4),
         )
-        best = None
+        best: _Tracks | None = None
         for hypothesis in hypotheses:
             outcome = self._track_and_pnp(prev, left, np.linalg.inv(hypothesis()))
             if best is None or outcome.n_inliers > best.n_inliers:
@@ -428,8 +428,11 @@ class StereoOdometry:
                 and outcome.n_inliers >= p.min_inlier_ratio * outcome.n_tracked
             ):
                 break
+        assert best is not None  # the hypotheses are never empty
         if (
             best.cur_from_prev is None
+            or best.object_points is None
+            or best.image_px is None
             or best.n_inliers < p.min_inliers
             or best.n_inliers < p.min_accept_ratio * best.n_tracked
         ):
@@ -639,8 +642,8 @@ class StereoOdometry:
 
     def _plausible(self, step: np.ndarray, dt_s: float) -> bool:
         angle = np.arccos(np.clip((np.trace(step[:3, :3]) - 1) / 2, -1.0, 1.0))
-        return (
-            bool(np.isfinite(step).all())
+        return bool(
+            np.isfinite(step).all()
             and np.linalg.norm(step[:3, 3]) <= self.params.max_speed_m_s * dt_s
             and angle <= self.params.max_yaw_rate_rad_s * dt_s
         )

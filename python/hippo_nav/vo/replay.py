@@ -50,6 +50,7 @@ from typing import Any
 
 import numpy as np
 
+from hippo_nav.datasets.base import StereoDataset
 from hippo_nav.datasets.kitti import read_times
 from hippo_nav.io import DatasetError, read_kitti_poses, read_tum
 from hippo_nav.io.errors import file_error
@@ -132,7 +133,7 @@ def _check_alignment(align: str, file_format: str | None = None) -> None:
         )
 
 
-def sequence_frame_count(dataset: Any) -> int | None:
+def sequence_frame_count(dataset: StereoDataset) -> int | None:
     """Frames of the dataset's whole sequence (before range and stride): the length of a KITTI sequence's
     times.txt; None for a dataset that does not say (only its yielded frame indices are known)."""
     sequence_dir = getattr(dataset, "sequence_dir", None)
@@ -141,7 +142,7 @@ def sequence_frame_count(dataset: Any) -> int | None:
     return len(read_times(Path(sequence_dir) / "times.txt"))
 
 
-def _describe_sequence(dataset: Any, n_frames: int) -> str:
+def _describe_sequence(dataset: StereoDataset, n_frames: int) -> str:
     sequence = getattr(dataset, "sequence", None) or getattr(dataset, "name", None)
     label = f"sequence {sequence}" if sequence is not None else "the sequence"
     sequence_dir = getattr(dataset, "sequence_dir", None)
@@ -356,7 +357,7 @@ def replay_odometry(
     pose_file = read_pose_file(path, file_format)
     _check_alignment(align, pose_file.file_format)
 
-    def build(dataset: Any) -> ReplayOdometry:
+    def build(dataset: StereoDataset) -> ReplayOdometry:
         return ReplayOdometry(pose_file, dataset, align=align)
 
     return build

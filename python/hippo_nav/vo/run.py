@@ -2,15 +2,14 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
+from hippo_nav.datasets.base import StereoDataset
 from hippo_nav.vo.odometry import StereoOdometry, VoParams, VoStep
 
 
 def run_odometry(
-    dataset: Any, params: VoParams | None = None, progress: bool = False
+    dataset: StereoDataset, params: VoParams | None = None, progress: bool = False
 ) -> tuple[np.ndarray, list[VoStep]]:
     """(world_from_camera (n, 4, 4) starting at the identity, steps) of the VO over `dataset`."""
     vo = StereoOdometry(dataset.calibration, params)
