@@ -14,11 +14,12 @@ import pytest
 from hippo_nav import SpatialMemory
 from hippo_nav.cli import build_parser, main
 from hippo_nav.datasets import KittiOdometry
-from hippo_nav.pipeline import Pipeline
+from hippo_nav.pipeline import Pipeline, config_from_dict
+from hippo_nav.pipeline.frontend import tracked_pixels
 from hippo_nav.pipeline.records import STAGES
 from hippo_nav.synthetic import DEMO_SEQUENCE, demo_sequence
 from hippo_nav.viewer import RerunObserver, VideoObserver
-from hippo_nav.viewer.panels import angles_to_pixels, colorize, neural_panels, tracked_pixels
+from hippo_nav.viewer.panels import angles_to_pixels, colorize, neural_panels
 from hippo_nav.viewer.rerun import BLOCK, _Blocks
 
 FRAMES = 20
@@ -264,12 +265,31 @@ def test_colorize_keeps_the_row_axis_pointing_up():
     np.testing.assert_allclose(angles_to_pixels(np.array([[0.0, 0.0]]), (4, 3)), [[0.5, 3.5]])
 
 
-def test_tracked_pixels_prefer_a_public_accessor_and_fall_back_to_none():
+def test_tracked_pixels_come_from_the_public_accessor_or_are_none():
     assert tracked_pixels(SimpleNamespace()) is None
-    private = SimpleNamespace(_previous=SimpleNamespace(pixels=np.ones((5, 2), np.float32)))
-    assert tracked_pixels(private).shape == (5, 2)
-    public = SimpleNamespace(tracked_pixels=lambda: np.zeros((3, 2)), _previous=private._previous)
-    assert tracked_pixels(public).shape == (3, 2)
+    assert tracked_pixels(SimpleNamespace(tracked_pixels=lambda: np.zeros((3, 2)))).shape == (3, 2)
+    assert tracked_pixels(SimpleNamespace(tracked_pixels=np.ones((5, 2), np.float32))).shape == (5, 2)
+
+
+def test_the_viewer_draws_the_features_of_the_frame_it_shows_not_the_next_one():
+    """The front end runs a frame ahead, so the features drawn with frame k must be the ones the
+    odometry tracked in frame k, captured before it moved on to k+1."""
+    from hippo_nav.vo import StereoOdometry
+
+    demo_subset, seen = demo(12), []
+
+    class Watch:
+        def on_frame(self, pipeline, frame, record, readout):
+            seen.append(pipeline.frame_features_px.copy())
+
+        def on_finish(self, result):
+            pass
+
+    Pipeline(demo_subset, config_from_dict({"output": {"figures": False}}), observers=[Watch()]).run(None)
+    alone = StereoOdometry(demo_subset.calibration)
+    for k in range(len(demo_subset)):
+        alone.process(demo_subset[k])
+        np.testing.assert_array_equal(seen[k], alone.tracked_pixels)
 
 
 # ------------------------------------------------------------------------------------------------

@@ -60,6 +60,17 @@ class ViewCellFrontEnd(Protocol):
     def __len__(self) -> int: ...
 
 
+def tracked_pixels(odometry: object) -> np.ndarray | None:
+    """(n, 2) left-image pixels of the features `odometry` tracks from its last frame, or None when it has
+    no `tracked_pixels` (an array, or a method returning one): a replayed or custom odometry."""
+    public = getattr(odometry, "tracked_pixels", None)
+    pixels = public() if callable(public) else public
+    if pixels is None:
+        return None
+    pixels = np.asarray(pixels, dtype=np.float64)
+    return pixels.reshape(-1, 2) if pixels.size % 2 == 0 else None
+
+
 def make_odometry(calibration: StereoCalibration, params: VoParams) -> StereoOdometry:
     """The stereo VO for `calibration` with the config's `vo` section."""
     return StereoOdometry(calibration, params)

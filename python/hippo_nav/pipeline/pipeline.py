@@ -54,7 +54,13 @@ from hippo_nav.geometry import lift_planar, planar_from_pose, se2_between, se2_c
 from hippo_nav.io import DatasetError
 from hippo_nav.map import ClosureMode, new_experience_map
 from hippo_nav.pipeline.config import PipelineConfig
-from hippo_nav.pipeline.frontend import Odometry, ViewCellFrontEnd, make_odometry, make_view_cells
+from hippo_nav.pipeline.frontend import (
+    Odometry,
+    ViewCellFrontEnd,
+    make_odometry,
+    make_view_cells,
+    tracked_pixels,
+)
 from hippo_nav.pipeline.records import STAGES, FrameRecord, RunRecord, RunResult
 from hippo_nav.vo import planar_step
 
@@ -150,6 +156,7 @@ class Pipeline:
         self._activation_gap: int | None = None
         self._last_step = np.eye(4)
         self._vo_pose = np.eye(4)
+        self.frame_features_px: np.ndarray | None = None  # the odometry's tracked features, this frame
         self._last_timestamp_s: float | None = None
         self._last_code: tuple[float, float] = (0.0, 0.0)
         self._closure_odometer_m = -np.inf
@@ -235,10 +242,14 @@ class Pipeline:
         frame = self.dataset[i]
         loaded = time.perf_counter()
         step, vo_status = self._odometry_step(frame)
-        return _FrontResult(frame, step, vo_status, loaded - clock, time.perf_counter() - loaded)
+        measured = time.perf_counter()
+        # Read now: with the front end a frame ahead, the odometry moves on before the back end is done.
+        features_px = tracked_pixels(self.odometry)
+        return _FrontResult(frame, step, vo_status, loaded - clock, measured - loaded, features_px)
 
     def _process(self, front: _FrontResult) -> None:
         frame, step, vo_status = front.frame, front.step, front.vo_status
+        self.frame_features_px = front.features_px
         self.record.stage_s["load"].append(front.load_s)
         self.record.stage_s["vo"].append(front.vo_s)
         clock = time.perf_counter()
@@ -635,6 +646,7 @@ class _FrontResult:
     vo_status: str
     load_s: float
     vo_s: float
+    features_px: np.ndarray | None  # the odometry's tracked features in this frame (None: it has none)
 
 
 class _FrontEnd:

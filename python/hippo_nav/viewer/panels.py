@@ -134,22 +134,6 @@ def bump_summary(readout: Any) -> list[str]:
 # The camera front end
 
 
-def tracked_pixels(odometry: Any) -> np.ndarray | None:
-    """(n, 2) left-image pixels of the features the odometry tracks from this frame, or None.
-
-    A public `tracked_pixels` (array, or method returning one) is used when the odometry has it; the
-    built-in `StereoOdometry` keeps its last stereo features privately, so they are read defensively; a
-    replayed or custom odometry has none."""
-    public = getattr(odometry, "tracked_pixels", None)
-    pixels = public() if callable(public) else public
-    if pixels is None:
-        pixels = getattr(getattr(odometry, "_previous", None), "pixels", None)
-    if pixels is None:
-        return None
-    pixels = np.asarray(pixels, dtype=np.float64)
-    return pixels.reshape(-1, 2) if pixels.size % 2 == 0 else None
-
-
 def view_cell_rows(views: Any, image_height_px: int) -> tuple[int, int] | None:
     """The image rows (top, bottom) the view cells' template is cut from, or None for a front end that does
     not say (the built-in `ViewCells` crop `config.crop_rows_frac` of the rows)."""

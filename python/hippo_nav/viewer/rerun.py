@@ -44,7 +44,6 @@ from hippo_nav.viewer.panels import (
     Tracks,
     bump_table,
     neural_panels,
-    tracked_pixels,
     view_cell_label,
     view_cell_rows,
 )
@@ -316,7 +315,7 @@ class RerunObserver:
         else:
             image = rr.Image(left)
         rec.log("camera/left", image)
-        pixels = tracked_pixels(pipeline.odometry)
+        pixels = pipeline.frame_features_px
         if pixels is not None:
             rec.log("camera/left/features", rr.Points2D(pixels + 0.5))
         rows = view_cell_rows(pipeline.views, left.shape[0])

@@ -32,7 +32,6 @@ from hippo_nav.viewer.panels import (
     Tracks,
     bump_summary,
     neural_panels,
-    tracked_pixels,
     view_cell_label,
     view_cell_rows,
 )
@@ -246,7 +245,7 @@ def _draw_camera(canvas: np.ndarray, pipeline: Any, frame: Any, record: Any, box
     size = (round(left.shape[1] * scale), round(left.shape[0] * scale))
     image = cv2.resize(left, size, interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
     canvas[y0 : y0 + size[1], x0 : x0 + size[0]] = image[..., None] if image.ndim == 2 else image
-    pixels = tracked_pixels(pipeline.odometry)
+    pixels = pipeline.frame_features_px
     if pixels is not None:
         at = (pixels + 0.5) * scale - 0.5 + [x0, y0]
         _squares(canvas, at, FEATURE, 1, (x0, y0, size[0], size[1]))

@@ -508,6 +508,12 @@ class StereoOdometry:
         return _Tracks(pose, n_tracked, n_inliers, object_points[idx], image_px[idx])
 
     @property
+    def tracked_pixels(self) -> np.ndarray:
+        """(n, 2) float32: left-image pixels of the stereo points the last frame carries into the next
+        (what a viewer draws as the tracked features; empty before the first frame)."""
+        return _NO_PIXELS.copy() if self._previous is None else self._previous.pixels.copy()
+
+    @property
     def stereo_bias_px(self) -> float:
         """Median, over the last `stereo_bias_window` well-tracked frames, of each frame's median disparity
         residual (predicted by the step from the previous frame's points, minus measured), px; NaN before
