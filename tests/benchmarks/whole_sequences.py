@@ -85,7 +85,9 @@ def run_one(sequence: str, variant: str, args: argparse.Namespace) -> dict:
     out = args.out / f"{sequence}_{variant}"
     metrics_path = out / "metrics.json"
     if metrics_path.is_file() and not args.again:
-        return json.loads(metrics_path.read_text())
+        metrics = json.loads(metrics_path.read_text())
+        if not metrics.get("interrupted"):  # a run stopped early (Ctrl-C, SIGTERM) is run again
+            return metrics
     odometry, _ = odometry_for(variant, sequence, args.renders, args.kitti, args.out)
     config = {"output": {"figures": variant == "vo"}}
     if variant.endswith("-ratslam"):
