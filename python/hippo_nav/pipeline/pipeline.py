@@ -38,11 +38,11 @@ import logging
 import signal
 import threading
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 import numpy as np
 
@@ -68,6 +68,7 @@ if TYPE_CHECKING:
     from typing_extensions import Self
 
 log = logging.getLogger("hippo_nav.pipeline")
+T = TypeVar("T")
 
 NO_VIEW_ID = 2**63 - 1
 """View-cell id given to the map before any informative view has been seen."""
@@ -142,6 +143,9 @@ class Pipeline:
         self.map = new_experience_map(self.config.map)
         self.geometric_closure = self.config.map.closure == ClosureMode.GEOMETRIC
         self.keyframes: dict[int, Keyframe] = {}
+        # Keyframes being extracted on the front end's worker (vertex → future); see `_keep_keyframe`.
+        self._pending_keyframes: dict[int, Future[Keyframe]] = {}
+        self._front_end: _FrontEnd | None = None
         if self.geometric_closure:
             self._extract = KeyframeExtractor(dataset.calibration, self.config.closure)
             self._measurer = LoopMeasurer(dataset.calibration, self.config.closure)
@@ -190,6 +194,7 @@ class Pipeline:
         stopped_by: DatasetError | None = None
         started = time.perf_counter()
         with _stop_on_signals() as caught, _progress(self) as bar, _FrontEnd(self) as front:
+            self._front_end = front
             try:
                 loops = 0
                 for i in range(len(self.dataset)):
@@ -214,6 +219,9 @@ class Pipeline:
                 if len(self.record) == 0:
                     raise
                 interrupted, stopped_by = True, err
+        self._front_end = None
+        for vertex in list(self._pending_keyframes):
+            self._keyframe(vertex)
         self.record.wall_s = time.perf_counter() - started
         self._snapshot(len(self.record) - 1, final=True)
         interrupted_by = caught.get("signal", "SIGINT") if interrupted and stopped_by is None else None
@@ -296,7 +304,7 @@ class Pipeline:
         if outcome.created and outcome.vertex is not None:
             self.record.vertex_position[int(outcome.vertex)] = len(self.record)
             if self.geometric_closure:
-                self.keyframes[int(outcome.vertex)] = current or self._extract(frame.left, frame.right)
+                self._keep_keyframe(int(outcome.vertex), current, frame)
         if obs is not None and obs.is_new and outcome.vertex is not None:
             self._cell_vertex[int(obs.cell_id)] = int(outcome.vertex)
             self._vertex_cells.setdefault(int(outcome.vertex), []).append(int(obs.cell_id))
@@ -442,6 +450,26 @@ class Pipeline:
         except HippoNavError:
             return self.engine.readout(), 0.0, 0.0, "engine_skipped"
 
+    def _keep_keyframe(self, vertex: int, made: Keyframe | None, frame: StereoFrame) -> None:
+        """Store the stereo keyframe of a new vertex. Unless this frame already made one (a closure attempt),
+        it is extracted on the front end's worker, beside the next frame's odometry: a vertex's keyframe is
+        first needed when the agent comes back, at least `min_loop_separation_m` later."""
+        front = self._front_end
+        if made is not None or front is None or not front.overlapping:
+            self.keyframes[vertex] = made or self._extract(frame.left, frame.right)
+        else:
+            self._pending_keyframes[vertex] = front.submit(self._extract, frame.left, frame.right)
+
+    def _keyframe(self, vertex: int) -> Keyframe | None:
+        """The keyframe of `vertex` (waiting for it if it is still being extracted), or None."""
+        pending = self._pending_keyframes.pop(vertex, None)
+        if pending is not None:
+            try:
+                self.keyframes[vertex] = pending.result()
+            except Exception as err:  # noqa: BLE001 - a keyframe costs closures to one vertex, never the run
+                log.warning("vertex %d: no stereo keyframe (%s); no loop can close onto it", vertex, err)
+        return self.keyframes.get(vertex)
+
     def _measure_closure(
         self, frame: Any, cell: int, planar: np.ndarray
     ) -> tuple[tuple[int, tuple[float, float, float], np.ndarray] | None, str, Keyframe | None]:
@@ -462,7 +490,7 @@ class Pipeline:
         current = self._extract(frame.left, frame.right)
         why = "no_keyframe"
         for vertex, _predicted, _distance in candidates[: cfg.candidates_per_frame]:
-            keyframe = self.keyframes.get(vertex)
+            keyframe = self._keyframe(vertex)
             if keyframe is None:
                 continue
             measurement, why = self._measurer.measure(keyframe, current)
@@ -670,6 +698,15 @@ class _FrontEnd:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hippo-nav-front")
         return self
 
+    @property
+    def overlapping(self) -> bool:
+        return self._pool is not None
+
+    def submit(self, work: Callable[..., T], *args: Any) -> Future[T]:
+        """Run `work(*args)` on the worker, after the frames already asked for (overlapping only)."""
+        assert self._pool is not None
+        return self._pool.submit(work, *args)
+
     def get(self, i: int) -> _FrontResult:
         """Frame `i`'s front-end result; starts frame i+1's."""
         if self._pool is None:
@@ -686,8 +723,9 @@ class _FrontEnd:
 
     def __exit__(self, *exc: object) -> None:
         if self._pool is not None:
-            # Wait for a frame in flight (a few ms) so nothing touches the VO after the run.
-            self._pool.shutdown(wait=True, cancel_futures=True)
+            # Finish what is queued (the next frame's odometry, keyframes being extracted: a few ms each)
+            # so that nothing touches the VO after the run and every vertex gets its keyframe.
+            self._pool.shutdown(wait=True)
 
 
 @contextlib.contextmanager
