@@ -276,3 +276,31 @@ def test_the_vo_prior_does_not_extrapolate_over_a_gap(demo):
     late = type(frames[3])(frames[3].index, frames[2].timestamp_s + 100.0, blank, blank)
     step = vo.process(late)
     assert step.status == "low_texture" and np.linalg.norm(step.camera_prev_from_camera_cur[:3, 3]) < 1e-9
+
+
+@pytest.mark.parametrize("overlap", [True, False])
+def test_a_failing_keyframe_extraction_costs_closures_not_the_run(demo, tmp_path, caplog, overlap):
+    """A vertex's keyframe is extracted beside the next frame's odometry (or inline without the overlap);
+    when extraction raises, the run still finishes and writes everything, and says which vertex lacks it."""
+    from hippo_nav.closure import KeyframeExtractor
+
+    real, calls = KeyframeExtractor.__call__, []
+
+    def fails_on_the_third(self, left, right):
+        calls.append(1)
+        if len(calls) == 3:
+            raise HippoNavError("simulated: keyframe extraction failed")
+        return real(self, left, right)
+
+    config = config_from_dict({**QUIET, "overlap_front_end": overlap})
+    pipeline = Pipeline(Frames(demo, 30), config)
+    pipeline._extract.__class__.__call__ = fails_on_the_third
+    try:
+        with caplog.at_level("WARNING", logger="hippo_nav.pipeline"):
+            result = pipeline.run(tmp_path / "out")
+    finally:
+        KeyframeExtractor.__call__ = real
+    assert not result.interrupted and len(result.record) == 30
+    assert len(pipeline.keyframes) == len(calls) - 1 >= 3
+    assert "no stereo keyframe" in caplog.text
+    assert (tmp_path / "out" / "metrics.json").is_file()

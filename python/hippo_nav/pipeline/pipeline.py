@@ -455,10 +455,18 @@ class Pipeline:
         it is extracted on the front end's worker, beside the next frame's odometry: a vertex's keyframe is
         first needed when the agent comes back, at least `min_loop_separation_m` later."""
         front = self._front_end
-        if made is not None or front is None or not front.overlapping:
-            self.keyframes[vertex] = made or self._extract(frame.left, frame.right)
-        else:
+        if made is not None:
+            self.keyframes[vertex] = made
+        elif front is not None and front.overlapping:
             self._pending_keyframes[vertex] = front.submit(self._extract, frame.left, frame.right)
+        else:
+            done: Future[Keyframe] = Future()
+            try:
+                done.set_result(self._extract(frame.left, frame.right))
+            except Exception as err:  # noqa: BLE001 - handled in `_keyframe`, like the worker's failures
+                done.set_exception(err)
+            self._pending_keyframes[vertex] = done
+            self._keyframe(vertex)
 
     def _keyframe(self, vertex: int) -> Keyframe | None:
         """The keyframe of `vertex` (waiting for it if it is still being extracted), or None."""
@@ -487,7 +495,11 @@ class Pipeline:
         candidates = self.map.loop_candidates(nearby, tuple(planar))
         if not candidates:
             return None, "no_candidate", None
-        current = self._extract(frame.left, frame.right)
+        try:
+            current = self._extract(frame.left, frame.right)
+        except Exception as err:  # noqa: BLE001 - a frame without a keyframe closes no loop; the run goes on
+            log.warning("frame %s: no stereo keyframe (%s); no loop closure attempted", frame.index, err)
+            return None, "no_current_keyframe", None
         why = "no_keyframe"
         for vertex, _predicted, _distance in candidates[: cfg.candidates_per_frame]:
             keyframe = self._keyframe(vertex)
