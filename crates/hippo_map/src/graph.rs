@@ -6,6 +6,7 @@
 //! default) anchors the gauge and never moves.
 use crate::error::{MapError, Result};
 use crate::se2::Pose2;
+use nalgebra::{Matrix3, Vector3};
 use serde::{Deserialize, Serialize};
 
 /// What created an edge. Loop edges are the ones a robust loss may down-weight.
@@ -49,13 +50,14 @@ impl Edge {
 
 #[inline]
 pub(crate) fn quadratic_form(m: &[[f64; 3]; 3], e: &[f64; 3]) -> f64 {
-    let mut s = 0.0;
-    for r in 0..3 {
-        for c in 0..3 {
-            s += e[r] * m[r][c] * e[c];
-        }
-    }
-    s
+    let e = Vector3::from(*e);
+    e.dot(&(matrix3(m) * e))
+}
+
+/// A 3×3 block stored as rows (how edges keep their information) as a nalgebra matrix.
+#[inline]
+pub(crate) fn matrix3(rows: &[[f64; 3]; 3]) -> Matrix3<f64> {
+    Matrix3::from_fn(|r, c| rows[r][c])
 }
 
 /// Identity information scaled per axis: `diag(1/σ_xy², 1/σ_xy², 1/σ_yaw²)`.

@@ -6,6 +6,10 @@
 //! ([`Pose2::between`]). Yaw is kept in `[-π, π)` by [`wrap_angle`], the model's
 //! `wrap(d) = mod(d+π, 2π) − π`. Odometric steps use the planar convention of docs/spec.md §9:
 //! `x` forward, `y` left, yaw counter-clockwise.
+//!
+//! The algebra is nalgebra's ([`Rotation2`] on [`Vector2`]); the pose itself stays three numbers with the
+//! yaw kept as an angle, because that is what is stored, serialized, optimised (additively) and wrapped.
+use nalgebra::{Rotation2, Vector2};
 use serde::{Deserialize, Serialize};
 use std::f64::consts::PI;
 
@@ -34,38 +38,51 @@ impl Pose2 {
         Self { x, y, yaw }
     }
 
+    /// The rotation part `R(yaw)`.
+    #[inline]
+    pub fn rotation(&self) -> Rotation2<f64> {
+        Rotation2::new(self.yaw)
+    }
+
+    /// The translation part `(x, y)`, metres.
+    #[inline]
+    pub fn translation_m(&self) -> Vector2<f64> {
+        Vector2::new(self.x, self.y)
+    }
+
+    #[inline]
+    fn from_parts(translation_m: Vector2<f64>, yaw_rad: f64) -> Pose2 {
+        Pose2 {
+            x: translation_m.x,
+            y: translation_m.y,
+            yaw: wrap_angle(yaw_rad),
+        }
+    }
+
     /// `self ⊕ other`: apply `other` in the frame of `self`.
     #[inline]
     pub fn compose(&self, other: &Pose2) -> Pose2 {
-        let (s, c) = self.yaw.sin_cos();
-        Pose2 {
-            x: self.x + c * other.x - s * other.y,
-            y: self.y + s * other.x + c * other.y,
-            yaw: wrap_angle(self.yaw + other.yaw),
-        }
+        Self::from_parts(
+            self.translation_m() + self.rotation() * other.translation_m(),
+            self.yaw + other.yaw,
+        )
     }
 
     #[inline]
     pub fn inverse(&self) -> Pose2 {
-        let (s, c) = self.yaw.sin_cos();
-        Pose2 {
-            x: -(c * self.x + s * self.y),
-            y: -(-s * self.x + c * self.y),
-            yaw: wrap_angle(-self.yaw),
-        }
+        Self::from_parts(
+            -(self.rotation().inverse() * self.translation_m()),
+            -self.yaw,
+        )
     }
 
     /// `self⁻¹ ⊕ other`: the pose of `other` expressed in the frame of `self`.
     #[inline]
     pub fn between(&self, other: &Pose2) -> Pose2 {
-        let (s, c) = self.yaw.sin_cos();
-        let dx = other.x - self.x;
-        let dy = other.y - self.y;
-        Pose2 {
-            x: c * dx + s * dy,
-            y: -s * dx + c * dy,
-            yaw: wrap_angle(other.yaw - self.yaw),
-        }
+        Self::from_parts(
+            self.rotation().inverse() * (other.translation_m() - self.translation_m()),
+            other.yaw - self.yaw,
+        )
     }
 
     pub fn is_finite(&self) -> bool {

@@ -29,10 +29,11 @@
 //! weight, so it cannot drag the map. Robust losses are non-convex, so they need a start that does not
 //! already trust the closures: [`Initialization::Odometry`] is the usual one for them.
 use crate::error::{MapError, Result};
-use crate::graph::{quadratic_form, Edge, EdgeKind, PoseGraph};
+use crate::graph::{matrix3, Edge, EdgeKind, PoseGraph};
 use crate::init::{free_indices, initialize_chordal};
 use crate::se2::{wrap_angle, Pose2};
 use crate::sparse::{BlockSlot, BlockSystem};
+use nalgebra::{Matrix3, Rotation2, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
 /// Loss applied to loop edges.
@@ -204,66 +205,41 @@ pub struct SolveReport {
     pub downweighted_loops: usize,
 }
 
-/// Partial derivatives of the residual w.r.t. `(x, y, yaw)` of `from` and `to`.
+/// The residual `e` and its partial derivatives w.r.t. `(x, y, yaw)` of `from` and `to`.
 #[inline]
 fn linearize(
     from: &Pose2,
     to: &Pose2,
     measured: &Pose2,
-) -> ([f64; 3], [[f64; 3]; 3], [[f64; 3]; 3]) {
-    let (si, ci) = from.yaw.sin_cos();
-    let (sz, cz) = measured.yaw.sin_cos();
-    let (dx, dy) = (to.x - from.x, to.y - from.y);
+) -> (Vector3<f64>, Matrix3<f64>, Matrix3<f64>) {
     // d = R_iᵀ(t_j − t_i), e_t = R_zᵀ(d − t_z), e_yaw = wrap(θ_j − θ_i − θ_z).
-    let d = [ci * dx + si * dy, -si * dx + ci * dy];
-    let (ux, uy) = (d[0] - measured.x, d[1] - measured.y);
-    let e = [
-        cz * ux + sz * uy,
-        -sz * ux + cz * uy,
-        wrap_angle(to.yaw - from.yaw - measured.yaw),
-    ];
-    // A = R_zᵀ R_iᵀ = R(−(θ_i + θ_z)).
-    let (sa, ca) = (from.yaw + measured.yaw).sin_cos();
-    let a = [[ca, sa], [-sa, ca]];
-    // ∂e_t/∂θ_i = R_zᵀ (d_y, −d_x).
-    let dth = [cz * d[1] + sz * (-d[0]), -sz * d[1] + cz * (-d[0])];
-    let j_from = [
-        [-a[0][0], -a[0][1], dth[0]],
-        [-a[1][0], -a[1][1], dth[1]],
-        [0.0, 0.0, -1.0],
-    ];
-    let j_to = [
-        [a[0][0], a[0][1], 0.0],
-        [a[1][0], a[1][1], 0.0],
-        [0.0, 0.0, 1.0],
-    ];
+    let d = from.rotation().inverse() * (to.translation_m() - from.translation_m());
+    let measured_inv = measured.rotation().inverse();
+    let e_t = measured_inv * (d - measured.translation_m());
+    let e = Vector3::new(e_t.x, e_t.y, wrap_angle(to.yaw - from.yaw - measured.yaw));
+    // A = R_zᵀ R_iᵀ = R(−(θ_i + θ_z)); ∂e_t/∂θ_i = R_zᵀ (d_y, −d_x).
+    let a = Rotation2::new(-(from.yaw + measured.yaw));
+    let a = a.matrix();
+    let dth = measured_inv * Vector2::new(d.y, -d.x);
+    #[rustfmt::skip]
+    let j_from = Matrix3::new(
+        -a[(0, 0)], -a[(0, 1)], dth.x,
+        -a[(1, 0)], -a[(1, 1)], dth.y,
+        0.0, 0.0, -1.0,
+    );
+    #[rustfmt::skip]
+    let j_to = Matrix3::new(
+        a[(0, 0)], a[(0, 1)], 0.0,
+        a[(1, 0)], a[(1, 1)], 0.0,
+        0.0, 0.0, 1.0,
+    );
     (e, j_from, j_to)
 }
 
+/// A nalgebra 3×3 block as rows (how the block system takes them).
 #[inline]
-fn jt_omega(j: &[[f64; 3]; 3], omega: &[[f64; 3]; 3], weight: f64) -> [[f64; 3]; 3] {
-    let mut out = [[0.0; 3]; 3];
-    for r in 0..3 {
-        for c in 0..3 {
-            let mut s = 0.0;
-            for k in 0..3 {
-                s += j[k][r] * omega[k][c];
-            }
-            out[r][c] = weight * s;
-        }
-    }
-    out
-}
-
-#[inline]
-fn mat3_mul(a: &[[f64; 3]; 3], b: &[[f64; 3]; 3]) -> [[f64; 3]; 3] {
-    let mut out = [[0.0; 3]; 3];
-    for r in 0..3 {
-        for c in 0..3 {
-            out[r][c] = a[r][0] * b[0][c] + a[r][1] * b[1][c] + a[r][2] * b[2][c];
-        }
-    }
-    out
+fn rows(m: &Matrix3<f64>) -> [[f64; 3]; 3] {
+    m.transpose().into()
 }
 
 /// Objective `F` and plain `χ²` at the given poses.
@@ -314,28 +290,30 @@ fn linearize_and_assemble(
     gradient.fill(0.0);
     for (e, [slot_ii, slot_jj, slot_ij]) in edges.iter().zip(slots) {
         let (res, j_from, j_to) = linearize(&poses[e.from], &poses[e.to], &e.from_to);
+        let omega = matrix3(&e.information);
         let weight = match e.kind {
-            EdgeKind::Loop => loss.evaluate(quadratic_form(&e.information, &res)).1,
+            EdgeKind::Loop => loss.evaluate(res.dot(&(omega * res))).1,
             EdgeKind::Odometry => 1.0,
         };
-        let jto_from = jt_omega(&j_from, &e.information, weight);
-        let jto_to = jt_omega(&j_to, &e.information, weight);
+        // w JᵀΩ for each end, then its products with e (gradient) and with J (Hessian blocks).
+        let jto_from = weight * j_from.transpose() * omega;
+        let jto_to = weight * j_to.transpose() * omega;
         for (vertex, jto) in [(e.from, &jto_from), (e.to, &jto_to)] {
             if let Some(b) = free[vertex] {
+                let g = jto * res;
                 for r in 0..3 {
-                    gradient[3 * b + r] +=
-                        jto[r][0] * res[0] + jto[r][1] * res[1] + jto[r][2] * res[2];
+                    gradient[3 * b + r] += g[r];
                 }
             }
         }
         if let Some(slot) = slot_ii {
-            system.add_at(slot, &mat3_mul(&jto_from, &j_from));
+            system.add_at(slot, &rows(&(jto_from * j_from)));
         }
         if let Some(slot) = slot_jj {
-            system.add_at(slot, &mat3_mul(&jto_to, &j_to));
+            system.add_at(slot, &rows(&(jto_to * j_to)));
         }
         if let Some(slot) = slot_ij {
-            system.add_at(slot, &mat3_mul(&jto_from, &j_to));
+            system.add_at(slot, &rows(&(jto_from * j_to)));
         }
     }
     gradient.iter().fold(0.0f64, |m, g| m.max(g.abs()))
@@ -628,9 +606,9 @@ mod tests {
                 for r in 0..3 {
                     let numeric = wrap_angle(e1[r] - e0[r]) / h;
                     assert!(
-                        (numeric - jac[r][k]).abs() < 1e-5,
+                        (numeric - jac[(r, k)]).abs() < 1e-5,
                         "d e{r}/d x{which}[{k}]: numeric {numeric} analytic {}",
-                        jac[r][k]
+                        jac[(r, k)]
                     );
                 }
             }
