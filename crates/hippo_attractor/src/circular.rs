@@ -5,7 +5,23 @@ use std::f64::consts::{PI, TAU};
 /// Signed circular difference in `[−π, π)`.
 #[inline]
 pub fn wrap(d: f64) -> f64 {
-    (d + PI).rem_euclid(TAU) - PI
+    // Bump decoding calls this for every unit against every bump; almost every argument is a difference
+    // of two angles in [0, 2π), within one turn, and the remainder (a libm fmod) dominated the decoder.
+    let r = if (-PI..PI).contains(&d) {
+        d
+    } else if (PI..3.0 * PI).contains(&d) {
+        d - TAU
+    } else if (-3.0 * PI..-PI).contains(&d) {
+        d + TAU
+    } else {
+        (d + PI).rem_euclid(TAU) - PI
+    };
+    // Rounding can land exactly on π.
+    if r >= PI {
+        r - TAU
+    } else {
+        r
+    }
 }
 
 /// Angle in `[0, 2π)`.

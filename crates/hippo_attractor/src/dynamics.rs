@@ -15,6 +15,7 @@
 //! A side effect of the exact leak: a bump whose weights shift it by `ν` per unit of recurrent drive moves
 //! `(1 − a)·ν` per step, i.e. at `ν/τ_eff` with `τ_eff = dt/(1 − e^{−dt/τ})` (→ τ as dt → 0). The velocity
 //! mappings use `τ_eff` so that path integration is exact to first order at any step size.
+use crate::lanes;
 use crate::real::Real;
 use rayon::prelude::*;
 
@@ -68,17 +69,7 @@ pub fn sum_rows<T: Real>(m: &[T], width: usize) -> Vec<T> {
 fn positive_part<T: Real>(drive: &[T], offset: T) -> (f64, usize) {
     drive
         .par_chunks(CHUNK)
-        .map(|c| {
-            let (mut sum, mut count) = (T::zero(), 0usize);
-            for &g in c {
-                let v = g + offset;
-                if v > T::zero() {
-                    sum = sum + v;
-                    count += 1;
-                }
-            }
-            (sum.f64(), count)
-        })
+        .map(|c| lanes::positive_part(c, offset))
         .reduce(|| (0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
 }
 
@@ -86,10 +77,7 @@ const CHUNK: usize = 4096;
 
 /// Mean of a state vector (chunked, parallel).
 pub fn mean<T: Real>(m: &[T]) -> f64 {
-    m.par_chunks(CHUNK)
-        .map(|c| c.iter().fold(T::zero(), |a, &b| a + b).f64())
-        .sum::<f64>()
-        / m.len() as f64
+    m.par_chunks(CHUNK).map(lanes::sum).sum::<f64>() / m.len() as f64
 }
 
 /// One step in place. `drive` is `g = h_rec + I` (everything but the inhibition); `j0 ≤ 0`; `guess` is a

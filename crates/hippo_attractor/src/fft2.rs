@@ -23,7 +23,8 @@ pub struct Fft2Scratch<T: Real> {
     row_spec: Vec<Complex<T>>,
     half: Vec<Complex<T>>,
     fft_scratch: Vec<Complex<T>>,
-    pub spectrum: Vec<Complex<T>>,
+    /// A spectrum buffer for [`RealFft2::convolve`].
+    spectrum: Vec<Complex<T>>,
 }
 
 impl<T: Real> RealFft2<T> {
@@ -65,8 +66,8 @@ impl<T: Real> RealFft2<T> {
         }
     }
 
-    /// Forward transform of `input` (n·n) into `scratch.spectrum` (transposed half spectrum).
-    pub fn forward(&self, input: &[T], scratch: &mut Fft2Scratch<T>) {
+    /// Forward transform of `input` (n·n) into `spectrum` ([`Self::spectrum_len`], transposed half spectrum).
+    pub fn forward(&self, input: &[T], spectrum: &mut [Complex<T>], scratch: &mut Fft2Scratch<T>) {
         let n = self.n;
         let nh = n / 2 + 1;
         for iy in 0..n {
@@ -78,23 +79,29 @@ impl<T: Real> RealFft2<T> {
                 &mut scratch.fft_scratch,
             );
             for kx in 0..nh {
-                scratch.spectrum[kx * n + iy] = scratch.row_spec[kx];
+                spectrum[kx * n + iy] = scratch.row_spec[kx];
             }
         }
         self.col_fwd
-            .process_with_scratch(&mut scratch.spectrum, &mut scratch.fft_scratch);
+            .process_with_scratch(spectrum, &mut scratch.fft_scratch);
     }
 
-    /// Inverse transform of `scratch.spectrum` (destroyed) into `out` (n·n), scaled by `scale`
+    /// Inverse transform of `spectrum` (destroyed) into `out` (n·n), scaled by `scale`
     /// (pass `1/n²` for a true inverse).
-    pub fn inverse(&self, scratch: &mut Fft2Scratch<T>, out: &mut [T], scale: T) {
+    pub fn inverse(
+        &self,
+        spectrum: &mut [Complex<T>],
+        out: &mut [T],
+        scale: T,
+        scratch: &mut Fft2Scratch<T>,
+    ) {
         let n = self.n;
         let nh = n / 2 + 1;
         self.col_inv
-            .process_with_scratch(&mut scratch.spectrum, &mut scratch.fft_scratch);
+            .process_with_scratch(spectrum, &mut scratch.fft_scratch);
         for kx in 0..nh {
             for iy in 0..n {
-                scratch.half[iy * nh + kx] = scratch.spectrum[kx * n + iy];
+                scratch.half[iy * nh + kx] = spectrum[kx * n + iy];
             }
         }
         for iy in 0..n {
@@ -127,9 +134,9 @@ impl<T: Real> RealFft2<T> {
                 values[iy * n + ix] = T::of(kernel(ix, iy));
             }
         }
-        let mut s = self.scratch();
-        self.forward(&values, &mut s);
-        s.spectrum
+        let mut spectrum = vec![Complex::default(); self.spectrum_len()];
+        self.forward(&values, &mut spectrum, &mut self.scratch());
+        spectrum
     }
 
     /// Circular convolution `out = scale · (kernel ⊛ input)` with a precomputed kernel spectrum.
@@ -141,12 +148,18 @@ impl<T: Real> RealFft2<T> {
         scale: T,
         scratch: &mut Fft2Scratch<T>,
     ) {
-        self.forward(input, scratch);
-        for (s, k) in scratch.spectrum.iter_mut().zip(kernel_spectrum) {
+        let mut spectrum = std::mem::take(&mut scratch.spectrum);
+        self.forward(input, &mut spectrum, scratch);
+        for (s, k) in spectrum.iter_mut().zip(kernel_spectrum) {
             *s = *s * *k;
         }
-        let inv_n2 = T::one() / T::of((self.n * self.n) as f64);
-        self.inverse(scratch, out, scale * inv_n2);
+        self.inverse(&mut spectrum, out, scale * self.inverse_scale(), scratch);
+        scratch.spectrum = spectrum;
+    }
+
+    /// `1/n²`: the factor that makes [`Self::inverse`] a true inverse.
+    pub fn inverse_scale(&self) -> T {
+        T::one() / T::of((self.n * self.n) as f64)
     }
 }
 

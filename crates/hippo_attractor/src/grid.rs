@@ -8,22 +8,20 @@
 //! followed by a dense mixing over velocity: `h(·, ν) = Σ_ν' cos(λ|ν − ν'|) · (K_ν' ⊛ m_ν')`.
 //! Silent slices (all zero) are skipped: still exact.
 //!
-//! Lattice-symmetric subspace. The weights are invariant under translation by `2π/k` along either torus
-//! axis, so the subspace of patterns with that period is invariant under the dynamics: a module holding
-//! `k²` identical bumps keeps them identical forever in exact arithmetic. We integrate the dynamics *in*
-//! that subspace, on one `(N/k)×(N/k)` unit cell with the kernel folded over the `k²` cells
-//! (`K_fold(Δ) = Σ_j K(Δ + 2πj/k)`) — exactly the paper's dynamics for such states, `k²` times cheaper.
-//! Why: the strongest Fourier modes of `cos(k·r)` on the square torus are not `(k, 0)` but `(2, 1)` for
-//! k = 2 and `(3, 3)` for k = 4, so the square `k×k` lattice is not the full network's preferred pattern:
-//! in double precision a moving k = 2 or k = 4 lattice broke into other patterns (3, 20 bumps) within a
-//! second (see docs/model.md). Restricted to the subspace, the lattice is the stable single bump per cell.
-//! Layout: `m[s·C² + iy·C + ix]` over one cell (`C = N/k`) with velocity slice `s = jy·M + jx`;
-//! [`GridModule::activity`] and [`GridModule::layer2`] tile it back to the full N×N torus.
+//! The velocity mixing runs in frequency space, factored. `C = cos(λ|ν − ν'|)` is a smooth (entire) function
+//! of `ν − ν'` over a small range, so its eigenvalues fall off fast: of the 81 of the default module, 12 are
+//! above `81·ε·max|σ|` in f32 (the numerical rank, LAPACK's and numpy's convention; 25 in f64). With
+//! `C = U diag(σ) Uᵀ` truncated to the numerical rank `r`,
+//! `h = U diag(σ) · IFFT(Σ_ν' U[ν', r] · K̂_ν' · m̂_ν')`: every slice is transformed forward once, but only
+//! `r` spectra come back (12 instead of 81 inverse FFTs in f32), and the two mixing products are `r/M²` the
+//! size of the dense one. The dropped part is below the rounding error of the dense product itself
+//! (`tests/exact_recurrent_input.rs` checks the result against the dense double sum in f64 and f32).
 use crate::check;
 use crate::circular::wrap;
 use crate::dynamics::{sum_rows, ImplicitStepper};
 use crate::error::{AttractorError, Result};
 use crate::fft2::RealFft2;
+use crate::lanes;
 use crate::real::Real;
 use rayon::prelude::*;
 use rustfft::num_complex::Complex;
@@ -133,12 +131,12 @@ pub struct GridModule<T: Real> {
     fft: RealFft2<T>,
     /// One kernel spectrum per presynaptic velocity slice.
     kernel_spectra: Vec<Vec<Complex<T>>>,
-    /// `cos(λ|ν_s − ν_s'|)`, s and s' velocity slices.
-    nu_mix: Vec<T>,
+    /// The velocity mixing `cos(λ|ν_s − ν_s'|)` factored as `mix_out · mix_in` (see module docs).
+    mix: VelocityMix<T>,
     m: Vec<T>,
     drive: Vec<T>,
     stepper: ImplicitStepper,
-    conv: Vec<T>,
+    work: MixWork<T>,
     /// Integral term of the velocity-pinning loop (neural units).
     pin_bias: [f64; 2],
 }
@@ -168,21 +166,23 @@ impl<T: Real> GridModule<T> {
                 })
             })
             .collect();
-        let nu_mix = slices
+        let dense_mix: Vec<f64> = slices
             .iter()
             .flat_map(|&a| slices.iter().map(move |&b| (a, b)))
-            .map(|(a, b)| T::of(params.nu_kernel(a, b)))
+            .map(|(a, b)| params.nu_kernel(a, b))
             .collect();
+        let mix = VelocityMix::new(&dense_mix, slices.len());
         let units = c * c * params.n_slices();
+        let work = MixWork::new(&fft, &mix);
         let mut module = Self {
             nu,
             fft,
             kernel_spectra,
-            nu_mix,
+            mix,
             m: vec![T::zero(); units],
             stepper: ImplicitStepper::default(),
             drive: vec![T::zero(); units],
-            conv: vec![T::zero(); units],
+            work,
             pin_bias: [0.0; 2],
             params,
         };
@@ -325,38 +325,70 @@ impl<T: Real> GridModule<T> {
     /// (same layout). Tiled to the full torus, it equals the dense sum over the full network for the
     /// tiled activity.
     pub fn recurrent_input(&self, m: &[T], out: &mut [T]) {
-        let mut conv = vec![T::zero(); m.len()];
-        self.recurrent_input_with(m, out, &mut conv);
+        let mut work = MixWork::new(&self.fft, &self.mix);
+        self.recurrent_input_with(m, out, &mut work);
     }
 
-    fn recurrent_input_with(&self, m: &[T], out: &mut [T], conv: &mut [T]) {
+    /// Number of velocity eigenmodes kept by the factored mixing (see module docs).
+    pub fn mixing_rank(&self) -> usize {
+        self.mix.rank
+    }
+
+    fn recurrent_input_with(&self, m: &[T], out: &mut [T], work: &mut MixWork<T>) {
         let n2 = self.params.cell() * self.params.cell();
         let ns = self.params.n_slices();
+        let len = self.fft.spectrum_len();
         // The sum runs over the full torus (N² units per slice); the folded kernel accounts for the k²
         // copies of each cell unit.
         let full = self.params.n_theta * self.params.n_theta;
-        let scale = T::of(self.params.jk / (full * ns) as f64);
-        // 1. Per presynaptic slice: exact circular convolution with that slice's kernel.
+        let scale = T::of(self.params.jk / (full * ns) as f64) * self.fft.inverse_scale();
         let active: Vec<bool> = m
             .chunks(n2)
             .map(|c| c.iter().any(|&x| x != T::zero()))
             .collect();
-        conv.par_chunks_mut(n2)
+        let MixWork {
+            spectra,
+            modes,
+            mode_spectra,
+        } = work;
+        // 1. Per presynaptic slice: its spectrum times that slice's kernel spectrum (silent slices skipped).
+        spectra
+            .par_chunks_mut(len)
             .zip(m.par_chunks(n2))
             .enumerate()
+            .filter(|(s, _)| active[*s])
             .for_each_init(
                 || self.fft.scratch(),
-                |scratch, (s, (out_s, m_s))| {
-                    if active[s] {
-                        self.fft
-                            .convolve(m_s, &self.kernel_spectra[s], out_s, scale, scratch)
-                    } else {
-                        out_s.iter_mut().for_each(|x| *x = T::zero());
+                |scratch, (s, (spec, m_s))| {
+                    self.fft.forward(m_s, spec, scratch);
+                    for (x, &k) in spec.iter_mut().zip(&self.kernel_spectra[s]) {
+                        *x = *x * k;
                     }
                 },
             );
-        // 2. Mix over velocity, one GEMM: h(·, s) = Σ_s' cos(λ|ν_s − ν_s'|) conv_s'.
-        T::gemm(ns, ns, n2, &self.nu_mix, conv, out);
+        // 2. Project onto each kept velocity eigenmode, in frequency space, and transform it back.
+        let spectra: &[Complex<T>] = spectra;
+        mode_spectra
+            .par_chunks_mut(len)
+            .zip(modes.par_chunks_mut(n2))
+            .enumerate()
+            .for_each_init(
+                || self.fft.scratch(),
+                |scratch, (r, (acc, mode))| {
+                    acc.iter_mut().for_each(|x| *x = Complex::default());
+                    for (s, spec) in spectra.chunks(len).enumerate() {
+                        if active[s] {
+                            let w = self.mix.input[r * ns + s];
+                            for (a, &x) in acc.iter_mut().zip(spec) {
+                                *a = *a + x * w;
+                            }
+                        }
+                    }
+                    self.fft.inverse(acc, mode, scale, scratch);
+                },
+            );
+        // 3. Back to velocity slices, one GEMM: h(·, s) = Σ_r U[s, r] σ_r mode_r.
+        T::gemm(ns, self.mix.rank, n2, &self.mix.output, modes, out);
     }
 
     /// One integration step with velocity target `u` and an optional view input: a layer-II pattern (N²),
@@ -382,8 +414,8 @@ impl<T: Real> GridModule<T> {
             (u[1] + self.pin_bias[1]).clamp(-lim, lim),
         ];
         let mut drive = std::mem::take(&mut self.drive);
-        let mut conv = std::mem::take(&mut self.conv);
-        self.recurrent_input_with(&self.m, &mut drive, &mut conv);
+        let mut work = std::mem::take(&mut self.work);
+        self.recurrent_input_with(&self.m, &mut drive, &mut work);
         let p = &self.params;
         let slices = slice_velocities(&self.nu);
         let two_s2 = 2.0 * p.input_sigma * p.input_sigma;
@@ -403,7 +435,7 @@ impl<T: Real> GridModule<T> {
         });
         let stepped = self.stepper.advance(&mut self.m, &drive, p.j0, dt_s, tau_s);
         self.drive = drive;
-        self.conv = conv;
+        self.work = work;
         stepped
     }
 
@@ -418,7 +450,7 @@ impl<T: Real> GridModule<T> {
         let slices = slice_velocities(&self.nu);
         let (mut sx, mut sy, mut total) = (0.0, 0.0, 0.0);
         for (s, slice) in self.m.chunks(n2).enumerate() {
-            let w: f64 = slice.iter().map(|x| x.f64()).sum();
+            let w = lanes::sum(slice);
             sx += w * slices[s][0];
             sy += w * slices[s][1];
             total += w;
@@ -427,6 +459,71 @@ impl<T: Real> GridModule<T> {
             [sx / total, sy / total]
         } else {
             [0.0, 0.0]
+        }
+    }
+}
+
+/// The velocity mixing matrix `C` (S×S, symmetric) factored as `C ≈ output · input` with
+/// `input = Uᵀ` (rank×S) and `output = U diag(σ)` (S×rank), keeping the eigenvalues above `S·ε·max|σ|`.
+struct VelocityMix<T> {
+    input: Vec<T>,
+    output: Vec<T>,
+    rank: usize,
+}
+
+impl<T: Real> VelocityMix<T> {
+    fn new(dense: &[f64], n: usize) -> Self {
+        let c = faer::Mat::<f64>::from_fn(n, n, |i, j| dense[i * n + j]);
+        let Ok(eigen) = c.self_adjoint_eigen(faer::Side::Lower) else {
+            // The symmetric eigensolver does not fail on a small finite matrix; if it ever did, the
+            // identity factorisation is the dense product itself (exact, just slower).
+            return Self {
+                input: (0..n * n)
+                    .map(|i| if i / n == i % n { T::one() } else { T::zero() })
+                    .collect(),
+                output: dense.iter().map(|&x| T::of(x)).collect(),
+                rank: n,
+            };
+        };
+        let sigma = eigen.S().column_vector();
+        let u = eigen.U();
+        let largest = (0..n).map(|i| sigma[i].abs()).fold(0.0, f64::max);
+        let keep: Vec<usize> = (0..n)
+            .filter(|&i| sigma[i].abs() > largest * n as f64 * T::epsilon().f64())
+            .collect();
+        let rank = keep.len();
+        let input = keep
+            .iter()
+            .flat_map(|&r| (0..n).map(move |s| T::of(u[(s, r)])))
+            .collect();
+        let output = (0..n)
+            .flat_map(|s| keep.iter().map(move |&r| T::of(u[(s, r)] * sigma[r])))
+            .collect();
+        Self {
+            input,
+            output,
+            rank,
+        }
+    }
+}
+
+/// Work buffers of the recurrent input: the kernel-weighted spectrum of every slice (S), and each kept
+/// eigenmode's spectrum and pattern (rank).
+#[derive(Default)]
+struct MixWork<T> {
+    spectra: Vec<Complex<T>>,
+    mode_spectra: Vec<Complex<T>>,
+    modes: Vec<T>,
+}
+
+impl<T: Real> MixWork<T> {
+    fn new(fft: &RealFft2<T>, mix: &VelocityMix<T>) -> Self {
+        let n_slices = mix.output.len() / mix.rank.max(1);
+        let len = fft.spectrum_len();
+        Self {
+            spectra: vec![Complex::default(); n_slices * len],
+            mode_spectra: vec![Complex::default(); mix.rank * len],
+            modes: vec![T::zero(); mix.rank * fft.n() * fft.n()],
         }
     }
 }

@@ -19,6 +19,7 @@ pub mod fft2;
 pub mod fusion;
 pub mod grid;
 pub mod hd;
+pub mod lanes;
 pub mod place;
 pub mod real;
 pub mod reference;

@@ -1,5 +1,5 @@
-//! The fast recurrent inputs (rank-2 ring, per-slice FFT + GEMM torus, FFT place) equal the dense double
-//! sums over the weight formulas, at sizes where the dense sum is cheap.
+//! The fast recurrent inputs (rank-2 ring, per-slice FFT + factored velocity mixing torus, FFT place) equal
+//! the dense double sums over the weight formulas, at sizes where the dense sum is cheap.
 // A test or benchmark: a failed unwrap is the check failing (library code never unwraps, see Cargo.toml).
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 use hippo_attractor::reference;
@@ -140,6 +140,44 @@ fn grid_fast_path_equals_dense_at_the_default_torus_size() {
     let dense = reference::grid_recurrent(&p, &m);
     let err = max_abs_diff(&fast, &dense);
     assert!(err < 1e-10, "{err}");
+}
+
+/// At the default velocity resolution (9×9 slices) the mixing is truncated to its numerical rank (10 modes
+/// of 81 in f32): the result still equals the dense double sum, to the type's rounding.
+#[test]
+fn truncated_velocity_mixing_equals_dense_at_the_default_velocity_size() {
+    let p = GridParams {
+        n_theta: 8,
+        ..GridParams::for_module(1)
+    };
+    assert_eq!(p.n_slices(), 81, "the default velocity axes");
+    let m64 = activity(p.n_units(), 17, 11);
+    let dense = reference::grid_recurrent(&p, &m64);
+    let scale = dense.iter().map(|x| x.abs()).fold(0.0, f64::max);
+    assert!(scale > 1.0, "non-trivial comparison");
+
+    let module64 = GridModule::<f64>::new(p.clone()).unwrap();
+    assert!(module64.mixing_rank() < 81);
+    let mut h64 = vec![0.0; m64.len()];
+    module64.recurrent_input(&m64, &mut h64);
+    assert!(max_abs_diff(&h64, &dense) < 1e-10 * scale);
+
+    let module32 = GridModule::<f32>::new(p).unwrap();
+    assert!(
+        module32.mixing_rank() <= 12,
+        "rank {}",
+        module32.mixing_rank()
+    );
+    let m32: Vec<f32> = m64.iter().map(|&x| x as f32).collect();
+    let mut h32 = vec![0.0f32; m32.len()];
+    module32.recurrent_input(&m32, &mut h32);
+    let err = dense
+        .iter()
+        .zip(&h32)
+        .map(|(a, &b)| (a - b as f64).abs())
+        .fold(0.0, f64::max);
+    // f32 rounding of sums over 81 slices × 64 units: a few ε of the scale.
+    assert!(err < 2e-6 * scale, "{err} vs scale {scale}");
 }
 
 /// Folding and tiling are inverse on periodic activity, and folding averages the k² cells.
