@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import threading
 
 import numpy as np
 import pytest
@@ -57,11 +58,13 @@ class _Subset:
         self._d, self._n, self._fail_at, self._interrupt_at = dataset, n, fail_at, interrupt_at
         self.name, self.calibration = dataset.name, dataset.calibration
         self.frame_indices, self.timestamps_s = dataset.frame_indices[:n], dataset.timestamps_s[:n]
+        self.reads: list[tuple[int, int]] = []  # (frame, reading thread) of every __getitem__
 
     def __len__(self) -> int:
         return self._n
 
     def __getitem__(self, i: int):
+        self.reads.append((i, threading.get_ident()))
         if i == self._interrupt_at:
             raise KeyboardInterrupt
         return self._d[i]
@@ -105,6 +108,12 @@ def test_a_short_run_is_deterministic_and_writes_every_result(demo, tmp_path):
     config = config_from_dict({"output": {"figures": False}})
     first = Pipeline(data, config).run(tmp_path / "a")
     sequential = config.model_copy(update={"overlap_front_end": False})
+    # Frames are loaded ahead on one thread of their own: each once, in order (a bag reader need not be
+    # thread-safe), never on the calling thread.
+    assert [i for i, _ in data.reads] == list(range(25))
+    readers = {thread for _, thread in data.reads}
+    assert len(readers) == 1 and threading.get_ident() not in readers
+    data.reads.clear()
     second = Pipeline(data, sequential).run(tmp_path / "b")
     np.testing.assert_array_equal(first.corrected_world_from_camera, second.corrected_world_from_camera)
     np.testing.assert_array_equal(first.vo_world_from_camera, second.vo_world_from_camera)

@@ -135,8 +135,8 @@ def test_sigterm_and_sighup_keep_the_frames_processed(demo, tmp_path, monkeypatc
     out = tmp_path / "out"
     assert main(["run", "--no-progress", "--no-figures", "--out", str(out)]) == code
     metrics = json.loads((out / "metrics.json").read_text())
-    # The signal arrives while frame 8 loads, a frame ahead of the networks: 7 to 9 frames are done.
-    assert metrics["interrupted"] and metrics["interrupted_by"] == signame and 7 <= metrics["frames"] <= 9
+    # The signal arrives while frame 8 loads, up to two frames ahead of the networks: 6 to 9 frames are done.
+    assert metrics["interrupted"] and metrics["interrupted_by"] == signame and 6 <= metrics["frames"] <= 9
     assert (out / "trajectory_corrected.kitti.txt").read_text().count("\n") == metrics["frames"]
     assert signal.getsignal(getattr(signal, signame)) is signal.SIG_DFL  # the handler is put back
 

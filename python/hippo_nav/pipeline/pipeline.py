@@ -244,16 +244,22 @@ class Pipeline:
         return str(getattr(self.dataset, "name", "sequence"))
 
     # ----------------------------------------------------------------------------------------------
-    def _front(self, i: int) -> _FrontResult:
-        """Load frame `i` and measure its odometry step (the part that runs a frame ahead, see `_FrontEnd`)."""
+    def _load(self, i: int) -> tuple[StereoFrame, float]:
+        """Frame `i` and the seconds its loading took."""
         clock = time.perf_counter()
         frame = self.dataset[i]
-        loaded = time.perf_counter()
+        return frame, time.perf_counter() - clock
+
+    def _front(self, i: int, loaded: Future[tuple[StereoFrame, float]] | None = None) -> _FrontResult:
+        """Load frame `i` (or take it from `loaded`, loaded ahead) and measure its odometry step (the part
+        that runs ahead of the back end, see `_FrontEnd`)."""
+        frame, load_s = self._load(i) if loaded is None else loaded.result()
+        clock = time.perf_counter()
         step, vo_status = self._odometry_step(frame)
-        measured = time.perf_counter()
+        vo_s = time.perf_counter() - clock
         # Read now: with the front end a frame ahead, the odometry moves on before the back end is done.
         features_px = tracked_pixels(self.odometry)
-        return _FrontResult(frame, step, vo_status, loaded - clock, measured - loaded, features_px)
+        return _FrontResult(frame, step, vo_status, load_s, vo_s, features_px)
 
     def _process(self, front: _FrontResult) -> None:
         frame, step, vo_status = front.frame, front.step, front.vo_status
@@ -690,24 +696,29 @@ class _FrontResult:
 
 
 class _FrontEnd:
-    """Loads frames and measures their odometry one frame ahead of the back end, on one worker thread.
+    """Loads frames two ahead of the back end and measures their odometry one frame ahead, each on its
+    own worker thread.
 
-    The odometry only looks at images, never at the networks or the map, so frame k+1's image loading
-    and VO (OpenCV releases the interpreter) can run while the networks and the map (Rust, also without
-    the interpreter) process frame k: on two cores the two halves overlap. One worker keeps the VO's
-    frames in order, so the results do not depend on it; `config.overlap_front_end = false` runs
-    everything on the calling thread. An error of frame k+1 (a corrupt image) surfaces when the back end
-    asks for frame k+1, after frame k is done, as without the overlap."""
+    The odometry only looks at images, never at the networks or the map, so frame k+1's VO (OpenCV
+    releases the interpreter) can run while the networks and the map (Rust, also without the interpreter)
+    process frame k, and frame k+2's images are decoded meanwhile (PNG decoding releases it too). One
+    loader and one VO worker keep the frames in order, so the results do not depend on the threads, and
+    only the loader reads the dataset (a bag reader need not be thread-safe). `config.overlap_front_end =
+    false` runs everything on the calling thread. An error of a later frame (a corrupt image) surfaces
+    when the back end asks for that frame, after the frames before it are done, as without the overlap."""
 
     def __init__(self, pipeline: Pipeline) -> None:
         self._pipeline = pipeline
         self._overlap = pipeline.config.overlap_front_end
         self._pool: ThreadPoolExecutor | None = None
+        self._loader: ThreadPoolExecutor | None = None
         self._next: tuple[int, Future[_FrontResult]] | None = None
+        self._loads: dict[int, Future[tuple[StereoFrame, float]]] = {}
 
     def __enter__(self) -> Self:
         if self._overlap:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hippo-nav-front")
+            self._loader = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hippo-nav-load")
         return self
 
     @property
@@ -719,6 +730,18 @@ class _FrontEnd:
         assert self._pool is not None
         return self._pool.submit(work, *args)
 
+    def _loaded(self, i: int) -> Future[tuple[StereoFrame, float]]:
+        """Frame `i` being loaded (asked for now if it was not yet), and frame i+1 asked for."""
+        assert self._loader is not None
+        for j in (i, i + 1):
+            if j < len(self._pipeline.dataset) and j not in self._loads:
+                self._loads[j] = self._loader.submit(self._pipeline._load, j)
+        return self._loads.pop(i)
+
+    def _start(self, i: int) -> Future[_FrontResult]:
+        assert self._pool is not None
+        return self._pool.submit(self._pipeline._front, i, self._loaded(i))
+
     def get(self, i: int) -> _FrontResult:
         """Frame `i`'s front-end result; starts frame i+1's."""
         if self._pool is None:
@@ -726,18 +749,17 @@ class _FrontEnd:
         if self._next is not None and self._next[0] == i:
             result = self._next[1].result()
         else:
-            result = self._pool.submit(self._pipeline._front, i).result()
-        if i + 1 < len(self._pipeline.dataset):
-            self._next = (i + 1, self._pool.submit(self._pipeline._front, i + 1))
-        else:
-            self._next = None
+            result = self._start(i).result()
+        self._next = (i + 1, self._start(i + 1)) if i + 1 < len(self._pipeline.dataset) else None
         return result
 
     def __exit__(self, *exc: object) -> None:
-        if self._pool is not None:
-            # Finish what is queued (the next frame's odometry, keyframes being extracted: a few ms each)
-            # so that nothing touches the VO after the run and every vertex gets its keyframe.
-            self._pool.shutdown(wait=True)
+        # Finish what is queued (the next frame's odometry, keyframes being extracted: a few ms each) so
+        # that nothing touches the VO after the run and every vertex gets its keyframe; a frame loaded
+        # ahead and never used is dropped.
+        for pool in (self._loader, self._pool):
+            if pool is not None:
+                pool.shutdown(wait=True)
 
 
 @contextlib.contextmanager
