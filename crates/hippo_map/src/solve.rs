@@ -395,15 +395,26 @@ struct Solver<'p> {
     damping: Option<Damping>,
 }
 
+/// The normal equations' set-up for `graph`'s pattern (ordering, symbolic factorisation, buffers); it does
+/// not depend on the poses.
+fn normal_equations(graph: &PoseGraph) -> Result<BlockSystem<3>> {
+    let free = free_indices(graph);
+    let pairs = graph
+        .edges
+        .iter()
+        .filter_map(|e| Some((free[e.from]?, free[e.to]?)));
+    BlockSystem::<3>::new(graph.len() - 1, pairs)
+}
+
 impl<'p> Solver<'p> {
-    fn new(work: PoseGraph, cost: f64, params: &'p SolverParams) -> Result<Self> {
+    fn new(
+        work: PoseGraph,
+        system: BlockSystem<3>,
+        cost: f64,
+        params: &'p SolverParams,
+    ) -> Result<Self> {
         let free = free_indices(&work);
         let n_free = work.len() - 1;
-        let pairs = work
-            .edges
-            .iter()
-            .filter_map(|e| Some((free[e.from]?, free[e.to]?)));
-        let system = BlockSystem::<3>::new(n_free, pairs)?;
         Ok(Self {
             params,
             slots: edge_slots(&work.edges, &free, &system),
@@ -513,8 +524,14 @@ impl<'p> Solver<'p> {
     }
 }
 
-/// Check the inputs and return a copy of the graph at the initial estimate chosen in `params`.
-fn initial_estimate(graph: &PoseGraph, params: &SolverParams) -> Result<PoseGraph> {
+/// Check the inputs and return a copy of the graph at the initial estimate chosen in `params`, and the
+/// normal equations' set-up when there is anything to solve. The two are independent (the set-up depends on
+/// the pattern only) and cost about the same on large graphs (on a 10⁵-vertex grid world the chordal
+/// estimate 0.67 s, the set-up 0.26 s), so they run at once on two cores.
+fn initial_estimate(
+    graph: &PoseGraph,
+    params: &SolverParams,
+) -> Result<(PoseGraph, Option<BlockSystem<3>>)> {
     params.validate()?;
     if graph.is_empty() {
         return Err(MapError::EmptyGraph);
@@ -526,12 +543,18 @@ fn initial_estimate(graph: &PoseGraph, params: &SolverParams) -> Result<PoseGrap
         });
     }
     let mut work = graph.clone();
-    match params.initialization {
-        Initialization::Current => {}
-        Initialization::Odometry => work.initialize_from_odometry()?,
-        Initialization::Chordal => initialize_chordal(&mut work)?,
-    }
-    Ok(work)
+    let to_solve = work.len() >= 2 && !work.edges.is_empty();
+    let (initialized, system) = rayon::join(
+        || match params.initialization {
+            Initialization::Current => Ok(()),
+            Initialization::Odometry => work.initialize_from_odometry(),
+            Initialization::Chordal => initialize_chordal(&mut work),
+        },
+        || to_solve.then(|| normal_equations(graph)).transpose(),
+    );
+    // An initialisation error (a disconnected vertex) says more than a set-up one.
+    initialized?;
+    Ok((work, system?))
 }
 
 /// Loop edges whose robust weight at the solution is below ½ (0 without a robust loss).
@@ -556,16 +579,17 @@ fn downweighted_loops(graph: &PoseGraph, loss: &RobustLoss) -> usize {
 /// docs); the graph's poses are replaced by the solution only when the solve succeeds.
 pub fn optimize(graph: &mut PoseGraph, params: &SolverParams) -> Result<SolveReport> {
     // Start: checked inputs, initial estimate on a copy.
-    let work = initial_estimate(graph, params)?;
+    let (work, system) = initial_estimate(graph, params)?;
     let loss = params.robust_loss;
     let (initial_cost, initial_chi2) = objective(&work, &work.poses, &loss);
-    let (iterations, termination, work) = if work.len() < 2 || work.edges.is_empty() {
-        (0, Termination::NothingToDo, work)
-    } else {
-        // Set up once (ordering, symbolic factorisation, buffers), then iterate.
-        let mut solver = Solver::new(work, initial_cost, params)?;
-        let (iterations, termination) = solver.run();
-        (iterations, termination, solver.work)
+    let (iterations, termination, work) = match system {
+        None => (0, Termination::NothingToDo, work),
+        Some(system) => {
+            // Set up once (ordering, symbolic factorisation, buffers), then iterate.
+            let mut solver = Solver::new(work, system, initial_cost, params)?;
+            let (iterations, termination) = solver.run();
+            (iterations, termination, solver.work)
+        }
     };
     // Report and hand the solution back.
     let (final_cost, final_chi2) = objective(&work, &work.poses, &loss);
