@@ -242,7 +242,7 @@ def test_a_shifted_right_image_is_reported_and_the_disparity_offset_corrects_it(
 def test_real_kitti_01_disparity_offset_and_the_bias_warning(shared_data):
     """KITTI 01's shared frames with calib.txt as given: the VO warns that the stereo pair looks biased
     (t_rel ~15 %); `disparity_offset_px = 1.5` brings t_rel to ~1.7 % (the camera-3 baseline of the test
-    above to ~2.4 %)."""
+    above to ~2.3 %)."""
     data = KittiOdometry(shared_data / "kitti_odometry", "01")
     frames = [data[i] for i in range(len(data))]
     gt = _rebased(data.ground_truth())

@@ -33,9 +33,7 @@ PREVIOUS_VO = VoParams(
     klt_coarse_window_px=None,
     klt_short_levels=4,
 )
-"""The VO before feature tracking (on KITTI 06 frames 0–50 it gives t_rel 1.32 %, the old code 1.33 %). Its
-backward checks now run on the image alone, like the current VO's (not a parameter): a little faster than the
-old code, so the speed-ups measured against it understate."""
+"""The VO before feature tracking (on KITTI 06 frames 0–50 it gives t_rel 1.32 %, the old code 1.33 %)."""
 
 ROUNDS = 3
 

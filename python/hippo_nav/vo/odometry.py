@@ -23,9 +23,9 @@ Per stereo frame k (rectified pair, camera x right, y down, z forward; docs/spec
 
 Cost. KLT is almost all of it, and its cost is per point and per pyramid level (each level costs about one
 window's worth of work, whatever the start). So: a search from afar runs the levels above the image on
-the half-size images with a small window, then the full-resolution window on the image alone; the
-right-image match at a predicted disparity (known to a few pixels) uses a short pyramid, and a backward check
-(which must come back within a pixel of its start) the image alone; carried points need no new detection nor a search from afar in the right image. OpenCV's
+the half-size images with a small window, then the full-resolution window on the image alone; a search
+whose start is known to a pixel (the backward checks, the right-image match at a predicted disparity) uses
+a short pyramid; carried points need no new detection nor a search from afar in the right image. OpenCV's
 Python binding does not take prebuilt pyramids (`buildOpticalFlowPyramid`'s output is refused by
 `calcOpticalFlowPyrLK` in OpenCV 5.0), but building them is a small part of a call.
 
@@ -94,8 +94,8 @@ class VoParams(BaseModel):
         1,
         ge=0,
         le=8,
-        description="KLT pyramid levels where the start is known to a few pixels: the right-image match of "
-        "a tracked point at the disparity its motion predicts (backward checks use the image alone)",
+        description="KLT pyramid levels where the start is known to about a pixel: the backward check, "
+        "and the right-image match of a tracked point at the disparity its motion predicts",
     )
     forward_backward_px: float = Field(1.0, gt=0.0, description="max forward–backward KLT error")
     stereo_row_tolerance_px: float = Field(1.5, gt=0.0, description="max row difference of a stereo match")
@@ -234,9 +234,6 @@ class StereoOdometry:
             "maxLevel": min(p.klt_short_levels, p.klt_levels),
             "criteria": criteria,
         }
-        # A backward check passes only if the track comes back within `forward_backward_px` of where it
-        # began, its start: the image alone decides that (a pyramid level cost 18 % of the VO's time).
-        self._klt_back = {"winSize": (w, w), "maxLevel": 0, "criteria": criteria}
         self._yaw_window: np.ndarray | None = None
         self._fast = cv2.FastFeatureDetector_create(p.fast_threshold, nonmaxSuppression=True)
         r = int(np.ceil(p.min_feature_distance_px))
@@ -370,11 +367,11 @@ class StereoOdometry:
 
     def _track_back(self, b: np.ndarray, a: np.ndarray, tracked: np.ndarray, pts: np.ndarray) -> np.ndarray:
         """Forward–backward check: KLT from the tracked positions in `b` back into `a`, started at the
-        original points (on the image alone: a good track comes back to where it began)."""
+        original points (a short pyramid: a good track comes back to where it began)."""
         if len(pts) == 0:
             return np.zeros(0, bool)
         back, ok, _ = cv2.calcOpticalFlowPyrLK(
-            b, a, tracked, pts.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._klt_back
+            b, a, tracked, pts.copy(), flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._klt_short
         )
         return (ok.ravel() == 1) & (np.linalg.norm(back - pts, axis=1) < self.params.forward_backward_px)
 
