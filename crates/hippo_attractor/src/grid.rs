@@ -8,12 +8,24 @@
 //! followed by a dense mixing over velocity: `h(·, ν) = Σ_ν' cos(λ|ν − ν'|) · (K_ν' ⊛ m_ν')`.
 //! Silent slices (all zero) are skipped: still exact.
 //!
-//! The velocity mixing runs in frequency space, factored. `C = cos(λ|ν − ν'|)` is a smooth (entire) function
-//! of `ν − ν'` over a small range, so its eigenvalues fall off fast: of the 81 of the default module, 12 are
-//! above `81·ε·max|σ|` in f32 (the numerical rank, LAPACK's and numpy's convention; 25 in f64). With
-//! `C = U diag(σ) Uᵀ` truncated to the numerical rank `r`,
+//! Lattice-symmetric subspace. The weights are invariant under translation by `2π/k` along either torus
+//! axis, so the subspace of patterns with that period is invariant under the dynamics: a module holding
+//! `k²` identical bumps keeps them identical forever in exact arithmetic. We integrate the dynamics *in*
+//! that subspace, on one `(N/k)×(N/k)` unit cell with the kernel folded over the `k²` cells
+//! (`K_fold(Δ) = Σ_j K(Δ + 2πj/k)`) — exactly the paper's dynamics for such states, `k²` times cheaper.
+//! Why: the strongest Fourier modes of `cos(k·r)` on the square torus are not `(k, 0)` but `(2, 1)` for
+//! k = 2 and `(3, 3)` for k = 4, so the square `k×k` lattice is not the full network's preferred pattern:
+//! in double precision a moving k = 2 or k = 4 lattice broke into other patterns (3, 20 bumps) within a
+//! second (see docs/model.md). Restricted to the subspace, the lattice is the stable single bump per cell.
+//! Layout: `m[s·C² + iy·C + ix]` over one cell (`C = N/k`) with velocity slice `s = jy·M + jx`;
+//! [`GridModule::activity`] and [`GridModule::layer2`] tile it back to the full N×N torus.
+//!
+//! The velocity mixing runs in frequency space, factored. `V = cos(λ|ν − ν'|)` is a smooth (entire) function
+//! of `ν − ν'` over a small range, so its eigenvalues fall off fast: of the 81 of the default module, 10 are
+//! above `81·ε·max|σ|` in f32 (the numerical rank, LAPACK's and numpy's convention; 32 in f64). With
+//! `V = U diag(σ) Uᵀ` truncated to the numerical rank `r`,
 //! `h = U diag(σ) · IFFT(Σ_ν' U[ν', r] · K̂_ν' · m̂_ν')`: every slice is transformed forward once, but only
-//! `r` spectra come back (12 instead of 81 inverse FFTs in f32), and the two mixing products are `r/M²` the
+//! `r` spectra come back (10 instead of 81 inverse FFTs in f32), and the two mixing products are `r/M²` the
 //! size of the dense one. The dropped part is below the rounding error of the dense product itself
 //! (`tests/exact_recurrent_input.rs` checks the result against the dense double sum in f64 and f32).
 use crate::check;
@@ -173,7 +185,7 @@ impl<T: Real> GridModule<T> {
             .collect();
         let mix = VelocityMix::new(&dense_mix, slices.len());
         let units = c * c * params.n_slices();
-        let work = MixWork::new(&fft, &mix);
+        let work = MixWork::new(&fft, &mix, slices.len());
         let mut module = Self {
             nu,
             fft,
@@ -325,7 +337,7 @@ impl<T: Real> GridModule<T> {
     /// (same layout). Tiled to the full torus, it equals the dense sum over the full network for the
     /// tiled activity.
     pub fn recurrent_input(&self, m: &[T], out: &mut [T]) {
-        let mut work = MixWork::new(&self.fft, &self.mix);
+        let mut work = MixWork::new(&self.fft, &self.mix, self.params.n_slices());
         self.recurrent_input_with(m, out, &mut work);
     }
 
@@ -463,7 +475,7 @@ impl<T: Real> GridModule<T> {
     }
 }
 
-/// The velocity mixing matrix `C` (S×S, symmetric) factored as `C ≈ output · input` with
+/// The velocity mixing matrix `V` (S×S, symmetric) factored as `V ≈ output · input` with
 /// `input = Uᵀ` (rank×S) and `output = U diag(σ)` (S×rank), keeping the eigenvalues above `S·ε·max|σ|`.
 struct VelocityMix<T> {
     input: Vec<T>,
@@ -517,8 +529,7 @@ struct MixWork<T> {
 }
 
 impl<T: Real> MixWork<T> {
-    fn new(fft: &RealFft2<T>, mix: &VelocityMix<T>) -> Self {
-        let n_slices = mix.output.len() / mix.rank.max(1);
+    fn new(fft: &RealFft2<T>, mix: &VelocityMix<T>, n_slices: usize) -> Self {
         let len = fft.spectrum_len();
         Self {
             spectra: vec![Complex::default(); n_slices * len],

@@ -4,6 +4,8 @@
 //! additions. These keep `LANES` independent partial sums, which it turns into SIMD adds. The last partial
 //! block is padded (with zeros, or with −∞ where only positive values count) rather than finished by a
 //! scalar tail loop, because such a tail made the compiler abandon the vectorised loop (8× slower, measured).
+//! For the same reason they are never inlined: inlined into the callers' rayon closures, the loops came out
+//! half scalar again.
 use crate::real::Real;
 
 const LANES: usize = 16;

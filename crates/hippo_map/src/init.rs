@@ -31,7 +31,8 @@ pub(crate) fn free_indices(graph: &PoseGraph) -> Vec<Option<usize>> {
         .collect()
 }
 
-fn pattern(graph: &PoseGraph, free: &[Option<usize>]) -> Vec<(usize, usize)> {
+/// The (free, free) vertex pairs that edges couple: the block pattern of the normal equations.
+pub(crate) fn pattern(graph: &PoseGraph, free: &[Option<usize>]) -> Vec<(usize, usize)> {
     graph
         .edges
         .iter()

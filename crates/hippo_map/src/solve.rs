@@ -30,7 +30,7 @@
 //! already trust the closures: [`Initialization::Odometry`] is the usual one for them.
 use crate::error::{MapError, Result};
 use crate::graph::{matrix3, Edge, EdgeKind, PoseGraph};
-use crate::init::{free_indices, initialize_chordal};
+use crate::init::{free_indices, initialize_chordal, pattern};
 use crate::se2::{wrap_angle, Pose2};
 use crate::sparse::{BlockSlot, BlockSystem};
 use nalgebra::{Matrix3, Rotation2, Vector2, Vector3};
@@ -398,12 +398,8 @@ struct Solver<'p> {
 /// The normal equations' set-up for `graph`'s pattern (ordering, symbolic factorisation, buffers); it does
 /// not depend on the poses.
 fn normal_equations(graph: &PoseGraph) -> Result<BlockSystem<3>> {
-    let free = free_indices(graph);
-    let pairs = graph
-        .edges
-        .iter()
-        .filter_map(|e| Some((free[e.from]?, free[e.to]?)));
-    BlockSystem::<3>::new(graph.len() - 1, pairs)
+    let pairs = pattern(graph, &free_indices(graph));
+    BlockSystem::<3>::new(graph.len() - 1, pairs.into_iter())
 }
 
 impl<'p> Solver<'p> {
