@@ -106,13 +106,23 @@ def test_a_short_run_is_deterministic_and_writes_every_result(demo, tmp_path):
     odometry a frame ahead (the default) changes nothing but the speed."""
     data = _Subset(demo, 25)
     config = config_from_dict({"output": {"figures": False}})
-    first = Pipeline(data, config).run(tmp_path / "a")
+    overlapped = Pipeline(data, config)
+    measure = overlapped.odometry.process
+    vo_threads: set[int] = set()
+
+    def process(frame):
+        vo_threads.add(threading.get_ident())
+        return measure(frame)
+
+    overlapped.odometry.process = process  # type: ignore[method-assign]
+    first = overlapped.run(tmp_path / "a")
     sequential = config.model_copy(update={"overlap_front_end": False})
-    # Frames are loaded ahead on one thread of their own: each once, in order (a bag reader need not be
-    # thread-safe), never on the calling thread.
+    # Frames are loaded ahead on one thread of their own, beside the odometry's: each once, in order (a bag
+    # reader need not be thread-safe), never on the calling thread.
     assert [i for i, _ in data.reads] == list(range(25))
     readers = {thread for _, thread in data.reads}
     assert len(readers) == 1 and threading.get_ident() not in readers
+    assert len(vo_threads) == 1 and not vo_threads & (readers | {threading.get_ident()})
     data.reads.clear()
     second = Pipeline(data, sequential).run(tmp_path / "b")
     np.testing.assert_array_equal(first.corrected_world_from_camera, second.corrected_world_from_camera)
