@@ -2,8 +2,8 @@
 
 Checked against the built module by `python -m mypy.stubtest hippo_nav._core` (tests/test_package.py).
 Every native class is final (PyO3 classes cannot be subclassed unless they opt in). Classes with a leading
-underscore are wrapped by a Python class of the same name without it (`hippo_nav.engine.SpatialMemory`,
-`hippo_nav.views.ViewCells`); the others are re-exported as they are.
+underscore are wrapped by a Python class (`hippo_nav.engine.SpatialMemory`,
+`hippo_nav.view_cells.TemplateViewCells`); the others are re-exported as they are.
 """
 
 import os
@@ -30,8 +30,7 @@ __all__ = [
     "_SpatialMemory",
     "_ViewCells",
     "__version__",
-    "default_engine_config_json",
-    "default_view_config_json",
+    "default_params_json",
     "find_bumps",
     "fuse_modules",
     "grid_recurrent_input_check",
@@ -40,6 +39,8 @@ __all__ = [
 __version__: str
 
 class HippoNavError(ValueError): ...
+
+def default_params_json(section: str) -> str: ...
 
 _F64: TypeAlias = npt.NDArray[np.float64]
 _Pair: TypeAlias = tuple[float, float]
@@ -63,8 +64,8 @@ class ViewObservation:
 
 @final
 class _ViewCells:
-    def __new__(cls, config_json: str | None = None) -> Self: ...
-    def config_json(self) -> str: ...
+    def __new__(cls, params_json: str | None = None) -> Self: ...
+    def params_json(self) -> str: ...
     def __len__(self) -> int: ...
     def observe(
         self,
@@ -85,8 +86,6 @@ class _ViewCells:
     ) -> tuple[npt.NDArray[np.float32], npt.NDArray[np.int32]]: ...
     def template(self, cell_id: int) -> npt.NDArray[np.float32]: ...
     def templates(self) -> npt.NDArray[np.float32]: ...
-
-def default_view_config_json() -> str: ...
 
 # --- engine (crates/hippo_py/src/attractor.rs) ---
 N_MODULES: Final[int]
@@ -139,8 +138,8 @@ class SpatialReadout:
 
 @final
 class _SpatialMemory:
-    def __new__(cls, config_json: str | None = None, dtype: str = "float32") -> Self: ...
-    def config_json(self) -> str: ...
+    def __new__(cls, params_json: str | None = None, dtype: str = "float32") -> Self: ...
+    def params_json(self) -> str: ...
     def step(
         self,
         yaw_rate_rad_s: float,
@@ -161,7 +160,6 @@ class _SpatialMemory:
     def aux_state_json(self) -> str: ...
     def set_state(self, hd: _F64, grids: Sequence[_F64], place: _F64, aux_json: str) -> None: ...
 
-def default_engine_config_json() -> str: ...
 def find_bumps(pattern: _F64, threshold_frac: float = 0.3) -> list[tuple[_Pair, _Pair, float]]: ...
 def fuse_modules(
     modules: Sequence[Sequence[tuple[_Pair, _Pair]]], prior_rad: _Pair | None = None
@@ -269,12 +267,10 @@ class MapFrameOutcome:
 @final
 class ExperienceMap:
     def __new__(cls, params_json: str | None = None) -> Self: ...
-    @staticmethod
-    def default_params_json() -> str: ...
     def params_json(self) -> str: ...
     def on_frame(
         self,
-        view_cell_id: int,
+        view_cell_id: int | None,
         place_code_rad: _Pair,
         heading_code_rad: float,
         odometry_step: _Pose,

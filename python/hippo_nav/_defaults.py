@@ -1,8 +1,8 @@
 """The Rust cores' default parameters, the single source of every default the Python models show.
 
-Each core serialises its `Params::default()` as JSON; the pydantic models (`EngineConfig`, `MapParams`,
-`ViewCellConfig`) take their field defaults from here, so a default is written once, in Rust, and a test
-checks that the Python models agree with it.
+Each core serialises its `Params::default()` as JSON (`_core.default_params_json(section)`); the pydantic
+models (`EngineConfig`, `MapParams`, `TemplateViewConfig`) take their field defaults from here, so a default
+is written once, in Rust, and a test checks that the Python models agree with it.
 """
 
 from __future__ import annotations
@@ -13,16 +13,10 @@ from typing import Any
 
 from hippo_nav import _core
 
-_SOURCES = {
-    "engine": _core.default_engine_config_json,
-    "map": _core.ExperienceMap.default_params_json,
-    "views": _core.default_view_config_json,
-}
-
 
 @cache
 def _section(section: str) -> dict[str, Any]:
-    return json.loads(_SOURCES[section]())
+    return json.loads(_core.default_params_json(section))
 
 
 def rust_defaults(section: str) -> dict[str, Any]:

@@ -1,6 +1,6 @@
 //! Drive the whole spatial memory along a winding 2-D trajectory and report how well each part tracks it.
 //! `cargo run --release --example path_integration -- [seconds] [n_theta] [n_nu]`
-use hippo_attractor::circular::wrap;
+use hippo_attractor::wrap_angle as wrap;
 use hippo_attractor::{SpatialMemory, SpatialMemoryParams};
 use std::time::Instant;
 

@@ -13,18 +13,6 @@ pub fn positive(name: &'static str, value: f64) -> Result<()> {
     }
 }
 
-pub fn finite(name: &'static str, value: f64) -> Result<()> {
-    if value.is_finite() {
-        Ok(())
-    } else {
-        Err(AttractorError::BadParameter {
-            name,
-            value: value.to_string(),
-            why: "must be finite".into(),
-        })
-    }
-}
-
 pub fn non_negative(name: &'static str, value: f64) -> Result<()> {
     if value.is_finite() && value >= 0.0 {
         Ok(())

@@ -11,7 +11,9 @@ use serde::{Deserialize, Serialize};
 /// One bump on the 2-D neural torus: centre (rad) and per-axis standard deviation (rad).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Bump2 {
+    /// Centre `(θx, θy)` on the torus (rad).
     pub mean_rad: [f64; 2],
+    /// Per-axis standard deviation `(σx, σy)` (rad).
     pub std_rad: [f64; 2],
     /// Total activity inside the bump (used to rank bumps, not in the fusion).
     pub mass: f64,
@@ -20,7 +22,9 @@ pub struct Bump2 {
 /// Result of fusing several modules' homocentric bumps.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct FusedEstimate {
+    /// Fused centre `(θx, θy)` on the torus (rad).
     pub mean_rad: [f64; 2],
+    /// Per-axis standard deviation of the fused estimate (rad).
     pub std_rad: [f64; 2],
 }
 

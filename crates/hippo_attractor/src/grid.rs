@@ -40,6 +40,7 @@ use rustfft::num_complex::Complex;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::TAU;
 
+/// Parameters of one grid-by-velocity module (docs/spec.md §3); defaults from `SpatialMemoryParams`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct GridParams {
     /// Wave number k: bumps per torus axis (1, 2, 4 in the paper).
@@ -85,6 +86,7 @@ impl GridParams {
         }
     }
 
+    /// Check every parameter; the error names the first bad one.
     pub fn validate(&self) -> Result<()> {
         check::size("grid.k", self.k, 1, 16)?;
         check::size("grid.n_theta", self.n_theta, 4, 1024)?;
@@ -110,6 +112,7 @@ impl GridParams {
         Ok(())
     }
 
+    /// Velocity slices of the conjunctive layer (`n_nu²`).
     pub fn n_slices(&self) -> usize {
         self.n_nu * self.n_nu
     }
@@ -137,6 +140,7 @@ impl GridParams {
     }
 }
 
+/// One grid-by-velocity torus with `k` bumps per axis, integrated in its lattice-symmetric unit cell.
 pub struct GridModule<T: Real> {
     params: GridParams,
     nu: Vec<f64>,
@@ -154,6 +158,7 @@ pub struct GridModule<T: Real> {
 }
 
 impl<T: Real> GridModule<T> {
+    /// A module at rest (no bump yet); `SpatialMemory::reset` seeds it.
     pub fn new(params: GridParams) -> Result<Self> {
         params.validate()?;
         let n = params.n_theta;
@@ -202,6 +207,7 @@ impl<T: Real> GridModule<T> {
         Ok(module)
     }
 
+    /// The module's parameters.
     pub fn params(&self) -> &GridParams {
         &self.params
     }
@@ -211,6 +217,7 @@ impl<T: Real> GridModule<T> {
         self.pin_bias
     }
 
+    /// Restore the pinning loop's integral term (clamped to the velocity axis).
     pub fn set_pin_bias(&mut self, bias: [f64; 2]) {
         let lim = self.params.nu_max;
         self.pin_bias = [bias[0].clamp(-lim, lim), bias[1].clamp(-lim, lim)];
@@ -226,6 +233,7 @@ impl<T: Real> GridModule<T> {
         self.tile(&self.m)
     }
 
+    /// The activity's shape, for messages.
     pub fn shape(&self) -> String {
         let (n, m) = (self.params.n_theta, self.params.n_nu);
         format!("(n_nu_y={m}, n_nu_x={m}, n_theta_y={n}, n_theta_x={n})")
@@ -281,6 +289,7 @@ impl<T: Real> GridModule<T> {
         out
     }
 
+    /// Velocity of each slice along one axis (neural units).
     pub fn nu_axis(&self) -> &[f64] {
         &self.nu
     }

@@ -13,6 +13,7 @@ use crate::real::Real;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::TAU;
 
+/// Parameters of the head-direction-by-velocity ring (docs/spec.md §2).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct HdParams {
     /// Units around the ring (Nθ).
@@ -59,6 +60,7 @@ impl Default for HdParams {
 }
 
 impl HdParams {
+    /// Check every parameter; the error names the first bad one.
     pub fn validate(&self) -> Result<()> {
         check::size("hd.n_theta", self.n_theta, 4, 1 << 16)?;
         check::size("hd.n_nu", self.n_nu, 1, 1024)?;
@@ -73,6 +75,7 @@ impl HdParams {
         Ok(())
     }
 
+    /// Units of the ring (`n_theta · n_nu`).
     pub fn n_units(&self) -> usize {
         self.n_theta * self.n_nu
     }
@@ -91,6 +94,7 @@ pub struct HdReadout {
     pub mean_activity: f64,
 }
 
+/// The head-direction-by-velocity ring.
 pub struct HdRing<T: Real> {
     params: HdParams,
     theta: Vec<f64>,
@@ -110,6 +114,7 @@ pub struct HdRing<T: Real> {
 }
 
 impl<T: Real> HdRing<T> {
+    /// A ring at rest (no bump yet); `SpatialMemory::reset` seeds it.
     pub fn new(params: HdParams) -> Result<Self> {
         params.validate()?;
         let theta = check::angle_axis(params.n_theta);
@@ -145,10 +150,12 @@ impl<T: Real> HdRing<T> {
         Ok(ring)
     }
 
+    /// The ring's parameters.
     pub fn params(&self) -> &HdParams {
         &self.params
     }
 
+    /// The activity, layout `[ν][θ]`.
     pub fn activity(&self) -> &[T] {
         &self.m
     }
@@ -158,6 +165,7 @@ impl<T: Real> HdRing<T> {
         self.pin_bias
     }
 
+    /// Restore the pinning loop's integral term (clamped to the velocity axis).
     pub fn set_pin_bias(&mut self, bias: f64) {
         self.pin_bias = bias.clamp(-self.params.nu_max, self.params.nu_max);
     }
@@ -171,6 +179,7 @@ impl<T: Real> HdRing<T> {
         Ok(())
     }
 
+    /// The activity's shape, for messages.
     pub fn shape(&self) -> String {
         format!(
             "(n_nu={}, n_theta={})",
@@ -326,10 +335,12 @@ impl<T: Real> HdRing<T> {
         }
     }
 
+    /// Preferred heading of each θ unit (rad).
     pub fn theta_axis(&self) -> &[f64] {
         &self.theta
     }
 
+    /// Preferred angular velocity of each ν slice (neural units).
     pub fn nu_axis(&self) -> &[f64] {
         &self.nu
     }

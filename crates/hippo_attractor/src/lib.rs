@@ -2,29 +2,35 @@
 //! model of Zeng, Li & Si ("Bayesian Integration of Multi-resolutional Grid Codes for Spatial
 //! Cognition"), as stated, with its departures from the paper, in `docs/spec.md`.
 //!
-//! - [`hd`]: head-direction-by-velocity ring (docs/spec.md §2), exact rank-2 recurrent input.
-//! - [`grid`]: grid-by-velocity tori with k = 1, 2, 4 bumps per axis (docs/spec.md §3),
+//! - [`HdRing`]: head-direction-by-velocity ring (docs/spec.md §2), exact rank-2 recurrent input.
+//! - [`GridModule`]: grid-by-velocity tori with k = 1, 2, 4 bumps per axis (docs/spec.md §3),
 //!   per-slice FFTs.
-//! - [`place`]: CA3 place torus (docs/spec.md §5).
-//! - [`decode`], [`fusion`]: bump decoding and Bayesian fusion (docs/spec.md §4).
-//! - [`spatial_memory`]: the whole network stepped per camera frame, with lesions and view injection.
-//! - [`dynamics`]: the integrator (implicit global inhibition, exact leak).
+//! - [`PlaceNetwork`]: CA3 place torus (docs/spec.md §5).
+//! - [`find_bumps`], [`fuse_homocentric`]: bump decoding and Bayesian fusion (docs/spec.md §4).
+//! - [`SpatialMemory`]: the whole network stepped per camera frame, with lesions and view injection.
+//! - [`tau_effective`]: the integrator's effective time constant (implicit global inhibition, exact leak).
 //! - [`reference`]: dense-weight reference implementations, for tests and benchmarks only.
-pub mod check;
-pub mod circular;
-pub mod decode;
-pub mod dynamics;
-pub mod error;
-pub mod fft2;
-pub mod fusion;
-pub mod grid;
-pub mod hd;
-pub mod lanes;
-pub mod place;
-pub mod real;
+//!
+//! The modules behind these are private; everything a caller needs is re-exported here.
+#![warn(missing_docs)]
+mod check;
+mod circular;
+mod decode;
+mod dynamics;
+mod error;
+mod fft2;
+mod fusion;
+mod grid;
+mod hd;
+mod lanes;
+mod place;
+mod real;
 pub mod reference;
-pub mod spatial_memory;
+mod spatial_memory;
 
+pub use circular::wrap as wrap_angle;
+pub use decode::find_bumps;
+pub use dynamics::tau_effective;
 pub use error::{AttractorError, Result};
 pub use fusion::{fuse_bumps, fuse_homocentric, Bump2, FusedEstimate};
 pub use grid::{GridModule, GridParams};

@@ -14,6 +14,7 @@ use rustfft::num_complex::Complex;
 use serde::{Deserialize, Serialize};
 use std::f64::consts::TAU;
 
+/// Parameters of the CA3 place torus (docs/spec.md §5).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct PlaceParams {
     /// Units per torus axis (N).
@@ -38,6 +39,7 @@ impl Default for PlaceParams {
 }
 
 impl PlaceParams {
+    /// Check every parameter; the error names the first bad one.
     pub fn validate(&self) -> Result<()> {
         check::size("place.n_theta", self.n_theta, 4, 4096)?;
         check::non_positive("place.j0", self.j0)?;
@@ -47,6 +49,7 @@ impl PlaceParams {
     }
 }
 
+/// The CA3 place torus, driven by the fused grid estimate.
 pub struct PlaceNetwork<T: Real> {
     params: PlaceParams,
     /// Mean of the cosine kernel over the torus. Its DC part acts like uniform inhibition (it is negative)
@@ -62,6 +65,7 @@ pub struct PlaceNetwork<T: Real> {
 }
 
 impl<T: Real> PlaceNetwork<T> {
+    /// A torus at rest (no bump yet); `SpatialMemory::reset` seeds it.
     pub fn new(params: PlaceParams) -> Result<Self> {
         params.validate()?;
         let n = params.n_theta;
@@ -88,18 +92,22 @@ impl<T: Real> PlaceNetwork<T> {
         })
     }
 
+    /// The torus' parameters.
     pub fn params(&self) -> &PlaceParams {
         &self.params
     }
 
+    /// The activity, layout `[θy][θx]`.
     pub fn activity(&self) -> &[T] {
         &self.m
     }
 
+    /// The Gaussian input from the fused grid estimate, layout `[θy][θx]`.
     pub fn input(&self) -> &[T] {
         &self.input
     }
 
+    /// Replace the whole state (length N², layout `[θy][θx]`); checked before anything changes.
     pub fn set_activity(&mut self, m: &[T]) -> Result<()> {
         let n = self.params.n_theta;
         check::array_len("place activity", m.len(), n * n, format!("({n}, {n})"))?;
@@ -148,6 +156,7 @@ impl<T: Real> PlaceNetwork<T> {
         }
     }
 
+    /// Integrate one sub-step `dt_s` with time constant `tau_s`.
     pub fn step(&mut self, dt_s: f64, tau_s: f64) -> Result<()> {
         let mut drive = std::mem::take(&mut self.drive);
         let m = std::mem::take(&mut self.m);

@@ -3,6 +3,7 @@ use realfft::num_traits::{Float, FromPrimitive};
 use realfft::FftNum;
 use std::iter::Sum;
 
+/// The float type a network runs in (`f32` for speed, `f64` for reference checks).
 pub trait Real: FftNum + Float + FromPrimitive + Sum + Default + Send + Sync + 'static {
     /// `c = a · b` for row-major `a` (m×k), `b` (k×n), `c` (m×n), with faer's parallel GEMM.
     fn gemm(m: usize, k: usize, n: usize, a: &[Self], b: &[Self], c: &mut [Self]);
@@ -12,6 +13,7 @@ pub trait Real: FftNum + Float + FromPrimitive + Sum + Default + Send + Sync + '
     fn of(x: f64) -> Self {
         Self::from_f64(x).unwrap_or_else(Self::zero)
     }
+    /// The value as `f64`.
     #[inline]
     fn f64(self) -> f64 {
         self.to_f64().unwrap_or(f64::NAN)

@@ -64,6 +64,7 @@ pub struct DenseGridWeights<T> {
 }
 
 impl<T: crate::real::Real> DenseGridWeights<T> {
+    /// The dense weight matrix of a grid module (`(M²N²)²` entries: small modules only).
     pub fn new(p: &GridParams) -> Self {
         let n = p.n_theta;
         let n2 = n * n;

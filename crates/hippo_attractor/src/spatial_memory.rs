@@ -27,6 +27,7 @@ use std::f64::consts::TAU;
 /// Number of grid modules (wave numbers 1, 2, 4 by default; index 0 is the coarsest, "ventral").
 pub const N_MODULES: usize = 3;
 
+/// Parameters of the whole network; `Default` is the single source of every default.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SpatialMemoryParams {
     /// Membrane time constant τ of every network (s).
@@ -35,9 +36,11 @@ pub struct SpatialMemoryParams {
     pub max_substep_s: f64,
     /// Side of the square that the neural torus stands for (m).
     pub torus_period_m: f64,
+    /// The head-direction ring.
     pub hd: HdParams,
     /// Grid modules from coarsest (ventral) to finest (dorsal).
     pub grid: [GridParams; N_MODULES],
+    /// The CA3 place torus.
     pub place: PlaceParams,
     /// Fraction of a pattern's maximum above which units seed a bump.
     pub bump_threshold_frac: f64,
@@ -68,6 +71,7 @@ impl Default for SpatialMemoryParams {
 }
 
 impl SpatialMemoryParams {
+    /// Check every parameter; the error names the first bad one.
     pub fn validate(&self) -> Result<()> {
         check::positive("tau_s", self.tau_s)?;
         check::positive("max_substep_s", self.max_substep_s)?;
@@ -114,9 +118,12 @@ pub struct ViewInjection<T> {
     pub strength: f64,
 }
 
+/// One grid module's part of a readout.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ModuleReadout {
+    /// Bumps per torus axis (1, 2, 4).
     pub k: usize,
+    /// Whether the module is switched off.
     pub lesioned: bool,
     /// Every bump of the layer-II pattern, strongest first.
     pub bumps: Vec<Bump2>,
@@ -126,10 +133,14 @@ pub struct ModuleReadout {
     pub position_m: [f64; 2],
 }
 
+/// What the network reads out after a frame.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SpatialReadout {
+    /// Network time since construction (s).
     pub time_s: f64,
+    /// The decoded heading and angular velocity.
     pub hd: HdReadout,
+    /// One readout per grid module, coarsest first.
     pub modules: Vec<ModuleReadout>,
     /// The Bayesian fusion of the homocentric bumps (None if every module is lesioned or silent).
     pub fused: Option<FusedEstimate>,
@@ -144,21 +155,34 @@ pub struct SpatialReadout {
 /// Everything but the activity arrays that a resumed run needs (small; serialisable).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct AuxState {
+    /// Network time (s).
     pub time_s: f64,
+    /// The HD ring's pinning integral.
     pub hd_pin_bias: f64,
+    /// Each grid module's pinning integral.
     pub grid_pin_bias: [[f64; 2]; N_MODULES],
+    /// The bump each module follows (rad).
     pub tracked_rad: [[f64; 2]; N_MODULES],
+    /// Each module's unwrapped bump position (rad).
     pub module_pos_rad: [[f64; 2]; N_MODULES],
+    /// The place bump followed (rad), if any.
     pub place_tracked_rad: Option<[f64; 2]>,
+    /// The place code's unwrapped position (rad).
     pub place_pos_rad: [f64; 2],
+    /// The last fused estimate (the prior of the next fusion).
     pub last_fused: Option<FusedEstimate>,
+    /// Which modules are switched off.
     pub lesioned: [bool; N_MODULES],
 }
 
+/// The whole spatial-memory network, stepped once per camera frame.
 pub struct SpatialMemory<T: Real> {
     params: SpatialMemoryParams,
+    /// The head-direction ring.
     pub hd: HdRing<T>,
+    /// The grid modules, coarsest first.
     pub grids: Vec<GridModule<T>>,
+    /// The CA3 place torus.
     pub place: PlaceNetwork<T>,
     tracked: [[f64; 2]; N_MODULES],
     module_pos_rad: [[f64; 2]; N_MODULES],
@@ -172,6 +196,7 @@ pub struct SpatialMemory<T: Real> {
 }
 
 impl<T: Real> SpatialMemory<T> {
+    /// A network of the given parameters, its bumps seeded at heading 0 and phase (0, 0).
     pub fn new(params: SpatialMemoryParams) -> Result<Self> {
         params.validate()?;
         let mut sm = Self {
@@ -197,6 +222,7 @@ impl<T: Real> SpatialMemory<T> {
         Ok(sm)
     }
 
+    /// The network's parameters.
     pub fn params(&self) -> &SpatialMemoryParams {
         &self.params
     }
@@ -240,6 +266,7 @@ impl<T: Real> SpatialMemory<T> {
         Ok(())
     }
 
+    /// The non-array part of the state (for save and resume).
     pub fn aux_state(&self) -> AuxState {
         AuxState {
             time_s: self.time_s,
@@ -426,6 +453,7 @@ impl<T: Real> SpatialMemory<T> {
         Ok(())
     }
 
+    /// The readout of the current state (no integration).
     pub fn readout(&self) -> SpatialReadout {
         let to_m = self.params.torus_period_m / TAU;
         let dt = self.params.max_substep_s;

@@ -1,7 +1,7 @@
 //! Module lesions ("MEC inactivation"), view-cell injection, and the errors bad input gets.
 // A test or benchmark: a failed unwrap is the check failing (library code never unwraps, see Cargo.toml).
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
-use hippo_attractor::circular::wrap;
+use hippo_attractor::wrap_angle as wrap;
 use hippo_attractor::{AttractorError, SpatialMemory, SpatialMemoryParams, ViewInjection};
 
 fn place_width_rad(sm: &mut SpatialMemory<f32>, lesioned: [bool; 3]) -> (f64, f64) {

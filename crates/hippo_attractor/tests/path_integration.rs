@@ -2,9 +2,9 @@
 //! whole network integrates a car-like 2-D trajectory.
 // A test or benchmark: a failed unwrap is the check failing (library code never unwraps, see Cargo.toml).
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
-use hippo_attractor::circular::wrap;
-use hippo_attractor::decode::find_bumps;
-use hippo_attractor::dynamics::tau_effective;
+use hippo_attractor::find_bumps;
+use hippo_attractor::tau_effective;
+use hippo_attractor::wrap_angle as wrap;
 use hippo_attractor::{
     GridModule, GridParams, HdParams, HdRing, SpatialMemory, SpatialMemoryParams,
 };

@@ -101,20 +101,25 @@ pub struct MapParams {
     /// A new vertex is made at the latest when the agent is this far from the current one (m), so the
     /// map keeps growing where the codes stall (a lesioned or lost place bump).
     pub max_vertex_spacing_m: f64,
+    /// How loop closures are found.
     pub closure: ClosureMode,
+    /// What to do when several vertices match (RatSLAM mode).
     pub ambiguity: AmbiguityPolicy,
     /// A loop closure joins only vertices at least this far apart along the path travelled (m).
     pub min_loop_separation_m: f64,
     /// Loop gate: the closed-onto pose must lie within `loop_gate_m + loop_gate_per_m · d` of where the
     /// odometry puts the agent, `d` the distance (m) travelled since the last accepted closure.
     pub loop_gate_m: f64,
+    /// Growth of the loop gate per metre travelled since the last closure.
     pub loop_gate_per_m: f64,
     /// Heading gate, likewise: `loop_gate_yaw_rad + loop_gate_yaw_rad_per_m · d`.
     pub loop_gate_yaw_rad: f64,
+    /// Growth of the heading gate per metre (rad/m).
     pub loop_gate_yaw_rad_per_m: f64,
     /// A new loop link whose χ² after the online correction exceeds this is taken back (16.27 = 99.9 %
     /// of χ² with 3 degrees of freedom). Only applied with least-squares online correction.
     pub max_loop_chi2: f64,
+    /// The correction run while the map is built.
     pub online_correction: OnlineCorrection,
     /// Relaxation passes run after every frame once a loop link exists (RatSLAM runs one per frame).
     pub online_relaxation_passes: usize,
@@ -124,12 +129,15 @@ pub struct MapParams {
     pub online_max_iterations: usize,
     /// Odometry link noise: constant part (m, rad) …
     pub link_sigma_xy_m: f64,
+    /// … (rad).
     pub link_sigma_yaw_rad: f64,
     /// … plus a part per metre of link length.
     pub odometry_sigma_xy_per_m: f64,
+    /// … (rad/m).
     pub odometry_sigma_yaw_rad_per_m: f64,
     /// Standard deviation of a RatSLAM loop link's claim that the agent is on the vertex (m, rad).
     pub ratslam_loop_sigma_xy_m: f64,
+    /// … (rad).
     pub ratslam_loop_sigma_yaw_rad: f64,
 }
 
@@ -162,6 +170,7 @@ impl Default for MapParams {
 }
 
 impl MapParams {
+    /// Check every parameter; the error names the first bad one.
     pub fn validate(&self) -> Result<()> {
         let positive = [
             ("place_threshold_rad", self.place_threshold_rad),
@@ -178,12 +187,12 @@ impl MapParams {
                 self.ratslam_loop_sigma_yaw_rad,
             ),
         ];
-        for (what, value) in positive {
+        for (name, value) in positive {
             if !(value.is_finite() && value > 0.0) {
-                return Err(MapError::InvalidParameter {
-                    what,
-                    requirement: "finite and > 0",
-                    value,
+                return Err(MapError::BadParameter {
+                    name,
+                    value: value.to_string(),
+                    why: "must be finite and > 0".into(),
                 });
             }
         }
@@ -197,12 +206,12 @@ impl MapParams {
                 self.odometry_sigma_yaw_rad_per_m,
             ),
         ];
-        for (what, value) in non_negative {
+        for (name, value) in non_negative {
             if !(value.is_finite() && value >= 0.0) {
-                return Err(MapError::InvalidParameter {
-                    what,
-                    requirement: "finite and >= 0",
-                    value,
+                return Err(MapError::BadParameter {
+                    name,
+                    value: value.to_string(),
+                    why: "must be finite and >= 0".into(),
                 });
             }
         }
@@ -235,10 +244,13 @@ impl MapParams {
 /// One experience: what the agent saw and coded there, and where the map puts it.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Vertex {
+    /// The view cell active when the vertex was made.
     pub view_cell_id: u64,
     /// `(θx, θy)`, rad on the place torus.
     pub place_code_rad: [f64; 2],
+    /// The HD code ψ (rad).
     pub heading_code_rad: f64,
+    /// The vertex's pose in the map frame.
     pub world_from_vertex: Pose2,
     /// Distance travelled (m, along the odometry) when the vertex was made.
     #[serde(default)]
@@ -249,11 +261,17 @@ pub struct Vertex {
 /// yaw). Odometry links are pure odometry; loop links are measured closures.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Link {
+    /// Start vertex.
     pub from: usize,
+    /// End vertex.
     pub to: usize,
+    /// `to` seen from `from`.
     pub from_from_to: Pose2,
+    /// Time between the two (s).
     pub elapsed_s: f64,
+    /// Odometry or loop link.
     pub kind: EdgeKind,
+    /// Information (inverse covariance), order x, y, yaw.
     pub information: [[f64; 3]; 3],
 }
 
@@ -261,19 +279,26 @@ pub struct Link {
 /// agent at this frame (`agent_from_target`), with its information (inverse covariance, x, y, yaw).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct LoopMeasurement {
+    /// The vertex closed onto.
     pub target: usize,
+    /// That vertex seen from the agent.
     pub agent_from_target: Pose2,
+    /// Information (inverse covariance), order x, y, yaw.
     pub information: [[f64; 3]; 3],
 }
 
 /// One camera frame's worth of input.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct FrameInput {
+    /// The active view cell.
     pub view_cell_id: u64,
+    /// `(θx, θy)` of the place bump (rad).
     pub place_code_rad: [f64; 2],
+    /// The HD code ψ (rad).
     pub heading_code_rad: f64,
     /// Odometry step `previous_frame_from_frame` (x forward, y left, yaw CCW).
     pub odometry_step: Pose2,
+    /// Time since the previous frame (s).
     pub elapsed_s: f64,
     /// A measured loop closure (geometric mode); ignored in RatSLAM mode.
     pub loop_closure: Option<LoopMeasurement>,
@@ -293,6 +318,7 @@ pub enum ClosureRejection {
 /// A loop-closure candidate for the caller to verify (see [`ExperienceMap::loop_candidates`]).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct LoopCandidate {
+    /// The vertex a closure may join.
     pub vertex: usize,
     /// The vertex seen from where the odometry puts the agent after this frame's step.
     pub predicted_agent_from_vertex: Pose2,
@@ -305,6 +331,7 @@ pub struct LoopCandidate {
 pub struct FrameOutcome {
     /// The current vertex after the frame; `None` while lost (relocalising) with no match yet.
     pub vertex: Option<usize>,
+    /// Whether the frame made a vertex.
     pub created: bool,
     /// `(from, to)` of the loop link added this frame.
     pub loop_closure: Option<(usize, usize)>,
@@ -323,16 +350,22 @@ pub struct FrameOutcome {
 /// Which corrector [`ExperienceMap::correct`] runs.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum Corrector {
+    /// RatSLAM-style relaxation passes.
     Relaxation(RelaxationParams),
+    /// Sparse Levenberg–Marquardt.
     LeastSquares(SolverParams),
 }
 
+/// What a correction did, with either corrector.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct CorrectionReport {
     /// Relaxation passes or LM iterations.
     pub iterations: usize,
+    /// `χ²` before the correction (after initialisation for least squares).
     pub initial_chi2: f64,
+    /// `χ²` after the correction.
     pub final_chi2: f64,
+    /// Whether least squares converged (always false for relaxation).
     pub converged: bool,
 }
 
@@ -364,6 +397,7 @@ fn distance_m(a: &Pose2, b: &Pose2) -> f64 {
 }
 
 impl ExperienceMap {
+    /// An empty map with these parameters (checked).
     pub fn new(params: MapParams) -> Result<Self> {
         params.validate()?;
         Ok(Self {
@@ -381,24 +415,31 @@ impl ExperienceMap {
         })
     }
 
+    /// The map's parameters.
     pub fn params(&self) -> &MapParams {
         &self.params
     }
+    /// Every vertex, in the order made.
     pub fn vertices(&self) -> &[Vertex] {
         &self.vertices
     }
+    /// Every link, in the order made.
     pub fn links(&self) -> &[Link] {
         &self.links
     }
+    /// The vertex the agent is at (`None` while lost).
     pub fn current_vertex(&self) -> Option<usize> {
         self.current
     }
+    /// Frames processed.
     pub fn frames(&self) -> u64 {
         self.frames
     }
+    /// Distance travelled along the odometry (m).
     pub fn odometer_m(&self) -> f64 {
         self.odometer_m
     }
+    /// Loop links in the map.
     pub fn loop_link_count(&self) -> usize {
         self.links
             .iter()
@@ -471,10 +512,10 @@ impl ExperienceMap {
         check_pose("link transform", &link.from_from_to)?;
         check_information(self.links.len(), &link.information)?;
         if !(link.elapsed_s.is_finite() && link.elapsed_s >= 0.0) {
-            return Err(MapError::InvalidParameter {
-                what: "link elapsed_s",
-                requirement: "finite and >= 0",
-                value: link.elapsed_s,
+            return Err(MapError::BadParameter {
+                name: "link elapsed_s",
+                value: link.elapsed_s.to_string(),
+                why: "must be finite and >= 0".into(),
             });
         }
         self.links.push(link);
@@ -601,10 +642,10 @@ impl ExperienceMap {
             }
         }
         if !(input.elapsed_s.is_finite() && input.elapsed_s >= 0.0) {
-            return Err(MapError::InvalidParameter {
-                what: "elapsed_s",
-                requirement: "finite and >= 0",
-                value: input.elapsed_s,
+            return Err(MapError::BadParameter {
+                name: "elapsed_s",
+                value: input.elapsed_s.to_string(),
+                why: "must be finite and >= 0".into(),
             });
         }
         if let Some(closure) = &input.loop_closure {
@@ -851,7 +892,7 @@ impl ExperienceMap {
                 let edge = Edge {
                     from: l.from,
                     to: l.to,
-                    from_to: l.from_from_to,
+                    from_from_to: l.from_from_to,
                     information: l.information,
                     kind: l.kind,
                 };
@@ -898,7 +939,7 @@ impl ExperienceMap {
                 .map(|l| Edge {
                     from: l.from,
                     to: l.to,
-                    from_to: l.from_from_to,
+                    from_from_to: l.from_from_to,
                     information: l.information,
                     kind: l.kind,
                 })

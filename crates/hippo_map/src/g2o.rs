@@ -133,7 +133,7 @@ pub fn parse_g2o(text: &str) -> Result<PoseGraph> {
         let edge = Edge {
             from: index_of[&from_id],
             to: index_of[&to_id],
-            from_to,
+            from_from_to: from_to,
             information,
             kind,
         };
@@ -165,7 +165,7 @@ pub fn format_g2o(graph: &PoseGraph) -> String {
     }
     for e in &graph.edges {
         let m = &e.information;
-        let z = &e.from_to;
+        let z = &e.from_from_to;
         let _ = writeln!(
             out,
             "EDGE_SE2 {} {} {} {} {} {} {} {} {} {} {}",

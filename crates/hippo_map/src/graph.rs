@@ -21,10 +21,17 @@ pub enum EdgeKind {
 /// One relative-pose measurement `i_from_j` with its information (inverse covariance, order x, y, yaw).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Edge {
+    /// Start vertex (index into `poses`).
     pub from: usize,
+    /// End vertex.
     pub to: usize,
-    pub from_to: Pose2,
+    // Written `from_to` before one spelling was chosen for the whole map (`Link` has the same field).
+    /// `to` seen from `from` (the measurement).
+    #[serde(alias = "from_to")]
+    pub from_from_to: Pose2,
+    /// Information (inverse covariance), order x, y, yaw.
     pub information: [[f64; 3]; 3],
+    /// Odometry or loop edge.
     pub kind: EdgeKind,
 }
 
@@ -33,7 +40,7 @@ impl Edge {
     #[inline]
     pub fn residual(&self, world_from_from: &Pose2, world_from_to: &Pose2) -> [f64; 3] {
         let delta = self
-            .from_to
+            .from_from_to
             .between(&world_from_from.between(world_from_to));
         [delta.x, delta.y, delta.yaw]
     }
@@ -70,14 +77,18 @@ pub fn isotropic_information(sigma_xy_m: f64, sigma_yaw_rad: f64) -> [[f64; 3]; 
 /// A planar pose graph. `ids` are the caller's vertex ids (g2o ids); edges index `poses` directly.
 #[derive(Debug, Clone, PartialEq, Default, Serialize, Deserialize)]
 pub struct PoseGraph {
+    /// The caller's vertex ids (g2o ids), one per pose.
     pub ids: Vec<u64>,
+    /// `world_from_vertex` of every vertex.
     pub poses: Vec<Pose2>,
+    /// The measurements.
     pub edges: Vec<Edge>,
     /// Index of the vertex that anchors the gauge.
     pub fixed: usize,
 }
 
 impl PoseGraph {
+    /// An empty graph.
     pub fn new() -> Self {
         Self::default()
     }
@@ -102,7 +113,7 @@ impl PoseGraph {
         if edge.from == edge.to {
             return Err(MapError::SelfLink { vertex: edge.from });
         }
-        check_pose("edge measurement", &edge.from_to)?;
+        check_pose("edge measurement", &edge.from_from_to)?;
         let index = self.edges.len();
         check_information(index, &edge.information)?;
         self.edges.push(edge);
@@ -122,10 +133,12 @@ impl PoseGraph {
             .sum()
     }
 
+    /// Vertices.
     pub fn len(&self) -> usize {
         self.poses.len()
     }
 
+    /// Whether the graph has no vertex.
     pub fn is_empty(&self) -> bool {
         self.poses.is_empty()
     }
@@ -173,9 +186,9 @@ impl PoseGraph {
                         continue;
                     }
                     new_poses[other] = if e.from == v {
-                        new_poses[v].compose(&e.from_to)
+                        new_poses[v].compose(&e.from_from_to)
                     } else {
-                        new_poses[v].compose(&e.from_to.inverse())
+                        new_poses[v].compose(&e.from_from_to.inverse())
                     };
                     visited[other] = true;
                     queue.push_back(other);

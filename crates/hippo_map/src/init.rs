@@ -97,7 +97,7 @@ pub fn initialize_chordal(graph: &mut PoseGraph) -> Result<()> {
     for e in &graph.edges {
         let kappa = e.information[2][2];
         // z_j − M z_i with M = multiplication by z_ij.
-        let m = rotation(e.from_to.yaw);
+        let m = rotation(e.from_from_to.yaw);
         let mt = transpose2(&m);
         let identity_k = [[kappa, 0.0], [0.0, kappa]];
         match (free[e.from], free[e.to]) {
@@ -139,11 +139,11 @@ pub fn initialize_chordal(graph: &mut PoseGraph) -> Result<()> {
             [e.information[1][0], e.information[1][1]],
         ];
         // r = A t_j − A t_i − R_zᵀ t_z with A = R_zᵀ R_iᵀ.
-        let rzt = transpose2(&rotation(e.from_to.yaw));
+        let rzt = transpose2(&rotation(e.from_from_to.yaw));
         let a = mat2_mul(&rzt, &transpose2(&rotation(yaw[e.from])));
         let at_omega = mat2_mul(&transpose2(&a), &omega);
         let h = mat2_mul(&at_omega, &a);
-        let mut constant = mat2_vec(&rzt, [e.from_to.x, e.from_to.y]);
+        let mut constant = mat2_vec(&rzt, [e.from_from_to.x, e.from_from_to.y]);
         constant = [-constant[0], -constant[1]];
         match (free[e.from], free[e.to]) {
             (Some(i), Some(j)) => {

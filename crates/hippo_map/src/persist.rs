@@ -16,6 +16,7 @@ use crate::experience::ExperienceMap;
 use crate::graph::check_pose;
 use std::path::Path;
 
+/// The first word of every map file.
 pub const MAGIC: &str = "HIPPO_NAV_MAP";
 /// 2: links carry their own information; vertices their odometer reading; closure gate state.
 pub const FORMAT_VERSION: u32 = 2;
@@ -156,9 +157,11 @@ pub fn load(path: &Path) -> Result<ExperienceMap> {
 }
 
 impl ExperienceMap {
+    /// Save to a versioned, checksummed file, written atomically (module doc).
     pub fn save(&self, path: &Path) -> Result<()> {
         save(self, path)
     }
+    /// Load a saved map; a truncated, corrupted or foreign file is an error and builds nothing.
     pub fn load(path: &Path) -> Result<ExperienceMap> {
         load(path)
     }

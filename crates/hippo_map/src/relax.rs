@@ -13,6 +13,7 @@ use crate::graph::PoseGraph;
 use crate::se2::{wrap_angle, Pose2};
 use serde::{Deserialize, Serialize};
 
+/// RatSLAM-style relaxation settings.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct RelaxationParams {
     /// Fraction of each link's error moved onto each of its ends per visit, in `(0, 1)`.
@@ -35,19 +36,23 @@ impl RelaxationParams {
         if self.gain.is_finite() && self.gain > 0.0 && self.gain < 1.0 {
             Ok(())
         } else {
-            Err(MapError::InvalidParameter {
-                what: "relaxation gain",
-                requirement: "in (0, 1) (RatSLAM uses 0.5)",
-                value: self.gain,
+            Err(MapError::BadParameter {
+                name: "relaxation gain",
+                value: self.gain.to_string(),
+                why: "must be in (0, 1) (RatSLAM uses 0.5)".into(),
             })
         }
     }
 }
 
+/// What relaxation passes did.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct RelaxationReport {
+    /// Passes run.
     pub passes: usize,
+    /// `χ²` before the first pass.
     pub initial_chi2: f64,
+    /// `χ²` after the last pass.
     pub final_chi2: f64,
 }
 
@@ -64,9 +69,9 @@ pub fn relax(graph: &mut PoseGraph, params: &RelaxationParams) -> Result<Relaxat
         for e in &graph.edges {
             let from = graph.poses[e.from];
             let to = graph.poses[e.to];
-            let predicted = from.compose(&e.from_to);
+            let predicted = from.compose(&e.from_from_to);
             let (dx, dy) = (to.x - predicted.x, to.y - predicted.y);
-            let dyaw = wrap_angle(from.yaw + e.from_to.yaw - to.yaw);
+            let dyaw = wrap_angle(from.yaw + e.from_from_to.yaw - to.yaw);
             graph.poses[e.from] = Pose2::new(
                 from.x + gain * dx,
                 from.y + gain * dy,

@@ -22,18 +22,23 @@ pub fn wrap_angle(angle_rad: f64) -> f64 {
 /// A rigid planar transform `a_from_b` (metres, radians).
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 pub struct Pose2 {
+    /// Forward (m).
     pub x: f64,
+    /// Left (m).
     pub y: f64,
+    /// Counter-clockwise heading (rad).
     pub yaw: f64,
 }
 
 impl Pose2 {
+    /// No motion.
     pub const IDENTITY: Pose2 = Pose2 {
         x: 0.0,
         y: 0.0,
         yaw: 0.0,
     };
 
+    /// A pose (the yaw is kept as given; see `wrap_angle`).
     pub fn new(x: f64, y: f64, yaw: f64) -> Self {
         Self { x, y, yaw }
     }
@@ -68,6 +73,7 @@ impl Pose2 {
         )
     }
 
+    /// `self⁻¹`.
     #[inline]
     pub fn inverse(&self) -> Pose2 {
         Self::from_parts(
@@ -85,10 +91,12 @@ impl Pose2 {
         )
     }
 
+    /// Whether every component is finite.
     pub fn is_finite(&self) -> bool {
         self.x.is_finite() && self.y.is_finite() && self.yaw.is_finite()
     }
 
+    /// `[x, y, yaw]`.
     pub fn to_array(&self) -> [f64; 3] {
         [self.x, self.y, self.yaw]
     }

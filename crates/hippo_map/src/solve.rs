@@ -42,9 +42,15 @@ pub enum RobustLoss {
     /// Plain least squares on every edge.
     None,
     /// Cauchy loss with scale `c²` in χ² units.
-    Cauchy { scale_chi2: f64 },
+    Cauchy {
+        /// `c²`.
+        scale_chi2: f64,
+    },
     /// Dynamic covariance scaling with threshold `Φ` in χ² units.
-    Dcs { phi_chi2: f64 },
+    Dcs {
+        /// `Φ`.
+        phi_chi2: f64,
+    },
 }
 
 impl RobustLoss {
@@ -66,7 +72,7 @@ impl RobustLoss {
     }
 
     fn validate(&self) -> Result<()> {
-        let (what, value) = match *self {
+        let (name, value) = match *self {
             RobustLoss::None => return Ok(()),
             RobustLoss::Cauchy { scale_chi2 } => ("Cauchy scale_chi2", scale_chi2),
             RobustLoss::Dcs { phi_chi2 } => ("DCS phi_chi2", phi_chi2),
@@ -74,10 +80,10 @@ impl RobustLoss {
         if value.is_finite() && value > 0.0 {
             Ok(())
         } else {
-            Err(MapError::InvalidParameter {
-                what,
-                requirement: "finite and > 0",
-                value,
+            Err(MapError::BadParameter {
+                name,
+                value: value.to_string(),
+                why: "must be finite and > 0".into(),
             })
         }
     }
@@ -114,7 +120,9 @@ pub struct SolverParams {
     pub fallback_lambda_scale: f64,
     /// On an accepted step λ shrinks by at most this factor (Nielsen's rule uses 3, GTSAM 10).
     pub max_lambda_decrease: f64,
+    /// Loss on loop edges.
     pub robust_loss: RobustLoss,
+    /// Where the poses start.
     pub initialization: Initialization,
 }
 
@@ -147,12 +155,12 @@ impl SolverParams {
                 self.max_lambda_decrease >= 1.0,
             ),
         ];
-        for (what, value, requirement, ok) in checks {
+        for (name, value, requirement, ok) in checks {
             if !(ok && value.is_finite()) {
-                return Err(MapError::InvalidParameter {
-                    what,
-                    requirement,
-                    value,
+                return Err(MapError::BadParameter {
+                    name,
+                    value: value.to_string(),
+                    why: format!("must be {requirement}"),
                 });
             }
         }
@@ -186,9 +194,11 @@ pub enum Termination {
     NothingToDo,
     /// λ grew past any useful value without finding a decrease: a (local) minimum to working precision.
     NoFurtherDecrease,
+    /// The iteration limit was reached.
     MaxIterations,
 }
 
+/// What a least-squares solve did.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct SolveReport {
     /// Accepted and rejected iterations (each one factorisation).
@@ -199,7 +209,9 @@ pub struct SolveReport {
     pub final_chi2: f64,
     /// The minimised objective `F` at the end (equals `final_chi2` without a robust loss).
     pub final_cost: f64,
+    /// Whether a convergence test was met.
     pub converged: bool,
+    /// Why the solve stopped.
     pub termination: Termination,
     /// Loop edges whose final robust weight is below ½ (treated as outliers); 0 without a robust loss.
     pub downweighted_loops: usize,
@@ -289,7 +301,7 @@ fn linearize_and_assemble(
     system.clear();
     gradient.fill(0.0);
     for (e, [slot_ii, slot_jj, slot_ij]) in edges.iter().zip(slots) {
-        let (res, j_from, j_to) = linearize(&poses[e.from], &poses[e.to], &e.from_to);
+        let (res, j_from, j_to) = linearize(&poses[e.from], &poses[e.to], &e.from_from_to);
         let omega = matrix3(&e.information);
         let weight = match e.kind {
             EdgeKind::Loop => loss.evaluate(res.dot(&(omega * res))).1,
@@ -636,7 +648,7 @@ mod tests {
         let edge = crate::graph::Edge {
             from: 0,
             to: 1,
-            from_to: z,
+            from_from_to: z,
             information: crate::graph::isotropic_information(1.0, 1.0),
             kind: EdgeKind::Odometry,
         };
@@ -707,7 +719,7 @@ mod tests {
             },
         ] {
             let err = bad.validate().unwrap_err();
-            assert!(matches!(err, MapError::InvalidParameter { .. }), "{err}");
+            assert!(matches!(err, MapError::BadParameter { .. }), "{err}");
         }
     }
 }

@@ -5,7 +5,7 @@
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 mod common;
 
-use hippo_map::persist::{from_bytes, to_bytes};
+use hippo_map::{from_bytes, to_bytes};
 use hippo_map::{
     isotropic_information, AmbiguityPolicy, ClosureMode, ClosureRejection, Corrector, EdgeKind,
     ExperienceMap, FrameInput, LoopMeasurement, MapParams, OnlineCorrection, Pose2,

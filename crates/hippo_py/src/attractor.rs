@@ -4,34 +4,15 @@
 //! source; Python's pydantic model is generated from them). Readouts cross as frozen typed objects
 //! (`SpatialReadout`, `ModuleReadout`, `Bump`) that hold the Rust readout and build their Python values
 //! when read; activity arrays cross as numpy arrays moved out of Rust vectors without copying.
+use crate::convert::{flat_f64, pair, params_from_json, params_to_json, to_numpy};
 use crate::errors::{to_py_err, HippoNavError};
 use hippo_attractor::{
-    decode, fuse_homocentric, Bump2, FusedEstimate, ModuleReadout, SpatialMemory,
-    SpatialMemoryParams, SpatialReadout, ViewInjection, N_MODULES,
+    find_bumps as decode_bumps, fuse_homocentric, Bump2, FusedEstimate, ModuleReadout,
+    SpatialMemory, SpatialMemoryParams, SpatialReadout, ViewInjection, N_MODULES,
 };
-use numpy::{
-    IntoPyArray, PyArray1, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArrayMethods,
-};
+use numpy::{IntoPyArray, PyArray1, PyArrayDyn, PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::PyTuple;
-
-/// Copy any-layout float64 array into a flat row-major vector after checking its shape.
-fn flat_f64(name: &str, a: &PyReadonlyArrayDyn<'_, f64>, shape: &[usize]) -> PyResult<Vec<f64>> {
-    if a.shape() != shape {
-        return Err(HippoNavError::new_err(format!(
-            "`{name}` has shape {:?}, expected {:?}",
-            a.shape(),
-            shape
-        )));
-    }
-    let v: Vec<f64> = a.as_array().iter().copied().collect();
-    if let Some(i) = v.iter().position(|x| !x.is_finite()) {
-        return Err(HippoNavError::new_err(format!(
-            "`{name}` contains a NaN or infinite value at flat index {i}"
-        )));
-    }
-    Ok(v)
-}
 
 /// Like `flat_f64`, for activities: firing rates are never negative.
 fn flat_activity(
@@ -141,10 +122,6 @@ impl PyBump {
             b.mean_rad[0], b.mean_rad[1], b.std_rad[0], b.std_rad[1], b.mass
         )
     }
-}
-
-fn pair(a: [f64; 2]) -> (f64, f64) {
-    (a[0], a[1])
 }
 
 fn bumps_tuple<'py>(py: Python<'py>, bumps: &[Bump2]) -> PyResult<Bound<'py, PyTuple>> {
@@ -291,22 +268,17 @@ fn into_numpy<'py, T: hippo_attractor::Real + numpy::Element>(
     shape: &[usize],
 ) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
     // Expose float64 regardless of the engine's precision: one dtype for callers.
-    let v64: Vec<f64> = v.into_iter().map(|x| x.f64()).collect();
-    v64.into_pyarray(py).reshape(shape.to_vec())
+    to_numpy(py, v.into_iter().map(|x| x.f64()).collect(), shape)
 }
 
 #[pymethods]
 impl PySpatialMemory {
-    /// `config_json`: JSON of the engine parameters (missing fields are an error: use the Python `Config`).
-    /// `dtype`: "float32" (fast, default) or "float64".
+    /// `params_json`: JSON of the engine parameters (missing fields are an error: use the Python
+    /// `EngineConfig`). `dtype`: "float32" (fast, default) or "float64".
     #[new]
-    #[pyo3(signature = (config_json=None, dtype="float32"))]
-    fn new(py: Python<'_>, config_json: Option<&str>, dtype: &str) -> PyResult<Self> {
-        let params: SpatialMemoryParams = match config_json {
-            None => SpatialMemoryParams::default(),
-            Some(s) => serde_json::from_str(s)
-                .map_err(|e| HippoNavError::new_err(format!("invalid engine config: {e}")))?,
-        };
+    #[pyo3(signature = (params_json=None, dtype="float32"))]
+    fn new(py: Python<'_>, params_json: Option<&str>, dtype: &str) -> PyResult<Self> {
+        let params: SpatialMemoryParams = params_from_json(params_json, "engine config")?;
         let engine = match dtype {
             "float32" => py
                 .detach(|| SpatialMemory::<f32>::new(params))
@@ -325,9 +297,8 @@ impl PySpatialMemory {
     }
 
     /// The resolved parameters as JSON.
-    fn config_json(&self) -> PyResult<String> {
-        with_engine!(&self.engine, sm, T, serde_json::to_string(sm.params()))
-            .map_err(|e| HippoNavError::new_err(e.to_string()))
+    fn params_json(&self) -> PyResult<String> {
+        with_engine!(&self.engine, sm, T, params_to_json(sm.params()))
     }
 
     /// Advance one camera frame. `view`: optional (hd_profile (Nθ,), [layer2 (N,N) or None] × N_MODULES,
@@ -465,7 +436,7 @@ impl PySpatialMemory {
     /// The non-array part of the state (pinning loops, bump tracking, time) as JSON.
     fn aux_state_json(&self) -> PyResult<String> {
         let aux = with_engine!(&self.engine, sm, T, sm.aux_state());
-        serde_json::to_string(&aux).map_err(|e| HippoNavError::new_err(e.to_string()))
+        params_to_json(&aux)
     }
 
     /// Restore a full network state (activity arrays as returned by the getters, plus `aux_state_json`),
@@ -527,13 +498,6 @@ fn module_index_error(index: i64) -> PyErr {
     ))
 }
 
-/// Default engine parameters as JSON (the single source of defaults).
-#[pyfunction]
-fn default_engine_config_json() -> PyResult<String> {
-    serde_json::to_string(&SpatialMemoryParams::default())
-        .map_err(|e| HippoNavError::new_err(e.to_string()))
-}
-
 /// Bumps of an (N, N) torus pattern: list of (mean_rad (x, y), std_rad (x, y), mass), strongest first.
 #[pyfunction]
 #[pyo3(signature = (pattern, threshold_frac=0.3))]
@@ -552,7 +516,7 @@ fn find_bumps(
     }
     let n = shape[0];
     let v = flat_f64("pattern", &pattern, &[n, n])?;
-    Ok(decode::find_bumps(&v, n, threshold_frac)
+    Ok(decode_bumps(&v, n, threshold_frac)
         .into_iter()
         .map(|b| {
             (
@@ -607,8 +571,7 @@ fn grid_recurrent_input_check<'py>(
     module: i64,
     activity: PyReadonlyArrayDyn<'_, f64>,
 ) -> PyResult<ArrayPair<'py>> {
-    let params: SpatialMemoryParams = serde_json::from_str(config_json)
-        .map_err(|e| HippoNavError::new_err(format!("invalid engine config: {e}")))?;
+    let params: SpatialMemoryParams = params_from_json(Some(config_json), "engine config")?;
     let p = params
         .grid
         .get(module_index(module)?)
@@ -640,7 +603,6 @@ pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PySpatialReadout>()?;
     m.add_class::<PyModuleReadout>()?;
     m.add_class::<PyBump>()?;
-    m.add_function(wrap_pyfunction!(default_engine_config_json, m)?)?;
     m.add_function(wrap_pyfunction!(find_bumps, m)?)?;
     m.add_function(wrap_pyfunction!(fuse_modules, m)?)?;
     m.add_function(wrap_pyfunction!(grid_recurrent_input_check, m)?)?;

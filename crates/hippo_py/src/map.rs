@@ -6,6 +6,7 @@
 //! a corrector did comes back as a frozen typed object (`MapFrameOutcome`, `SolveReport`,
 //! `RelaxationReport`, `CorrectionReport`); the reports also read like dicts (`report["final_chi2"]`,
 //! `as_dict()`).
+use crate::convert::{flat_f64, params_from_json, params_to_json, report, rows_f64, PoseTuple};
 use crate::errors::{to_py_err, HippoNavError};
 use hippo_map::{
     isotropic_information, optimize, parse_g2o, read_g2o, relax, write_g2o, ClosureRejection,
@@ -16,20 +17,20 @@ use hippo_map::{
 use numpy::{
     IntoPyArray, PyArray2, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArrayMethods,
 };
-use pyo3::exceptions::PyKeyError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
-use pyo3::IntoPyObjectExt;
 use std::path::PathBuf;
 
-/// `(x, y, yaw)` as it crosses the boundary.
-type PoseTuple = (f64, f64, f64);
 /// A measured loop closure from Python: target vertex, `agent_from_target`, information (3, 3).
 type LoopArg<'py> = (usize, PoseTuple, PyReadonlyArrayDyn<'py, f64>);
 /// A loop candidate for Python: vertex, predicted `agent_from_vertex`, distance (m).
 type CandidateTuple = (usize, PoseTuple, f64);
 
-fn pose_of(name: &str, p: (f64, f64, f64)) -> PyResult<Pose2> {
+/// The view-cell id the map is given for a frame without one (Python's `None`): the map treats it as
+/// one more id, never made by the view cells (their ids count up from 0).
+const NO_VIEW_CELL: u64 = (1 << 63) - 1;
+
+fn pose_of(name: &str, p: PoseTuple) -> PyResult<Pose2> {
     let pose = Pose2::new(p.0, p.1, p.2);
     if !pose.is_finite() {
         return Err(HippoNavError::new_err(format!(
@@ -39,29 +40,8 @@ fn pose_of(name: &str, p: (f64, f64, f64)) -> PyResult<Pose2> {
     Ok(pose)
 }
 
-/// Any-layout float64 array of shape `(n, cols)` (n free) into row-major values; checks finiteness.
-fn rows_f64(
-    name: &str,
-    a: &PyReadonlyArrayDyn<'_, f64>,
-    cols: &[usize],
-) -> PyResult<(usize, Vec<f64>)> {
-    let shape = a.shape();
-    if shape.len() != cols.len() + 1 || shape[1..] != *cols {
-        return Err(HippoNavError::new_err(format!(
-            "`{name}` has shape {shape:?}, expected (n, {})",
-            cols.iter()
-                .map(|c| c.to_string())
-                .collect::<Vec<_>>()
-                .join(", ")
-        )));
-    }
-    let v: Vec<f64> = a.as_array().iter().copied().collect();
-    if let Some(i) = v.iter().position(|x| !x.is_finite()) {
-        return Err(HippoNavError::new_err(format!(
-            "`{name}` holds a NaN or infinity at flat index {i}"
-        )));
-    }
-    Ok((shape[0], v))
+fn pose_tuple(p: Pose2) -> PoseTuple {
+    (p.x, p.y, p.yaw)
 }
 
 fn poses_array<'py>(
@@ -129,41 +109,6 @@ fn solver_params(
     })
 }
 
-/// A report's fields in order, for `as_dict`, `__getitem__` and `__repr__`.
-trait ReportFields {
-    const NAME: &'static str;
-    fn fields<'py>(&self, py: Python<'py>) -> PyResult<Vec<(&'static str, Bound<'py, PyAny>)>>;
-
-    fn as_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let d = PyDict::new(py);
-        for (k, v) in self.fields(py)? {
-            d.set_item(k, v)?;
-        }
-        Ok(d)
-    }
-
-    fn item<'py>(&self, py: Python<'py>, key: &str) -> PyResult<Bound<'py, PyAny>> {
-        self.fields(py)?
-            .into_iter()
-            .find(|(k, _)| *k == key)
-            .map(|(_, v)| v)
-            .ok_or_else(|| PyKeyError::new_err(key.to_owned()))
-    }
-
-    fn repr(&self, py: Python<'_>) -> PyResult<String> {
-        let parts = self
-            .fields(py)?
-            .into_iter()
-            .map(|(k, v)| Ok(format!("{k}={}", v.repr()?)))
-            .collect::<PyResult<Vec<_>>>()?;
-        Ok(format!("{}({})", Self::NAME, parts.join(", ")))
-    }
-}
-
-fn any<'py, T: IntoPyObject<'py>>(py: Python<'py>, v: T) -> PyResult<Bound<'py, PyAny>> {
-    v.into_bound_py_any(py)
-}
-
 fn termination_name(t: Termination) -> &'static str {
     match t {
         Termination::CostConverged => "cost_converged",
@@ -174,189 +119,50 @@ fn termination_name(t: Termination) -> &'static str {
     }
 }
 
-/// What a least-squares solve did (see `hippo_map::SolveReport`).
-#[pyclass(name = "SolveReport", module = "hippo_nav._core", frozen, eq, mapping)]
-#[derive(PartialEq)]
-pub struct PySolveReport {
-    inner: SolveReport,
-}
-
-impl ReportFields for PySolveReport {
-    const NAME: &'static str = "SolveReport";
-    fn fields<'py>(&self, py: Python<'py>) -> PyResult<Vec<(&'static str, Bound<'py, PyAny>)>> {
-        let r = &self.inner;
-        Ok(vec![
-            ("iterations", any(py, r.iterations)?),
-            ("initial_chi2", any(py, r.initial_chi2)?),
-            ("final_chi2", any(py, r.final_chi2)?),
-            ("final_cost", any(py, r.final_cost)?),
-            ("converged", any(py, r.converged)?),
-            ("termination", any(py, termination_name(r.termination))?),
-            ("downweighted_loops", any(py, r.downweighted_loops)?),
-        ])
+report! {
+    /// What a least-squares solve did (see `hippo_map::SolveReport`).
+    "SolveReport" PySolveReport from SolveReport, |r| {
+        /// Accepted and rejected Levenberg–Marquardt iterations (each one factorisation).
+        iterations: usize = r.iterations,
+        /// `χ²` (plain, all edges) at the start, after initialisation.
+        initial_chi2: f64 = r.initial_chi2,
+        /// `χ²` (plain, all edges) at the end.
+        final_chi2: f64 = r.final_chi2,
+        /// The minimised objective at the end (equals `final_chi2` without a robust loss).
+        final_cost: f64 = r.final_cost,
+        /// Whether a convergence test was met.
+        converged: bool = r.converged,
+        /// Why the solve stopped: "cost_converged", "gradient_converged", "nothing_to_do",
+        /// "no_further_decrease" or "max_iterations".
+        termination: &'static str = termination_name(r.termination),
+        /// Loop edges whose final robust weight is below ½ (treated as outliers); 0 without a robust loss.
+        downweighted_loops: usize = r.downweighted_loops,
     }
 }
 
-#[pymethods]
-impl PySolveReport {
-    /// Accepted and rejected Levenberg–Marquardt iterations (each one factorisation).
-    #[getter]
-    fn iterations(&self) -> usize {
-        self.inner.iterations
-    }
-    /// `χ²` (plain, all edges) at the start, after initialisation.
-    #[getter]
-    fn initial_chi2(&self) -> f64 {
-        self.inner.initial_chi2
-    }
-    /// `χ²` (plain, all edges) at the end.
-    #[getter]
-    fn final_chi2(&self) -> f64 {
-        self.inner.final_chi2
-    }
-    /// The minimised objective at the end (equals `final_chi2` without a robust loss).
-    #[getter]
-    fn final_cost(&self) -> f64 {
-        self.inner.final_cost
-    }
-    #[getter]
-    fn converged(&self) -> bool {
-        self.inner.converged
-    }
-    /// Why the solve stopped: "cost_converged", "gradient_converged", "nothing_to_do",
-    /// "no_further_decrease" or "max_iterations".
-    #[getter]
-    fn termination(&self) -> &'static str {
-        termination_name(self.inner.termination)
-    }
-    /// Loop edges whose final robust weight is below ½ (treated as outliers); 0 without a robust loss.
-    #[getter]
-    fn downweighted_loops(&self) -> usize {
-        self.inner.downweighted_loops
-    }
-    /// The fields as a plain dict (e.g. for JSON).
-    fn as_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        ReportFields::as_dict(self, py)
-    }
-    fn __getitem__<'py>(&self, py: Python<'py>, key: &str) -> PyResult<Bound<'py, PyAny>> {
-        self.item(py, key)
-    }
-    fn __repr__(&self, py: Python<'_>) -> PyResult<String> {
-        self.repr(py)
+report! {
+    /// What relaxation passes did (see `hippo_map::RelaxationReport`).
+    "RelaxationReport" PyRelaxationReport from RelaxationReport, |r| {
+        /// Relaxation passes run.
+        iterations: usize = r.passes,
+        /// `χ²` before the first pass.
+        initial_chi2: f64 = r.initial_chi2,
+        /// `χ²` after the last pass.
+        final_chi2: f64 = r.final_chi2,
     }
 }
 
-/// What relaxation passes did (see `hippo_map::RelaxationReport`).
-#[pyclass(
-    name = "RelaxationReport",
-    module = "hippo_nav._core",
-    frozen,
-    eq,
-    mapping
-)]
-#[derive(PartialEq)]
-pub struct PyRelaxationReport {
-    inner: RelaxationReport,
-}
-
-impl ReportFields for PyRelaxationReport {
-    const NAME: &'static str = "RelaxationReport";
-    fn fields<'py>(&self, py: Python<'py>) -> PyResult<Vec<(&'static str, Bound<'py, PyAny>)>> {
-        let r = &self.inner;
-        Ok(vec![
-            ("iterations", any(py, r.passes)?),
-            ("initial_chi2", any(py, r.initial_chi2)?),
-            ("final_chi2", any(py, r.final_chi2)?),
-        ])
-    }
-}
-
-#[pymethods]
-impl PyRelaxationReport {
-    /// Relaxation passes run.
-    #[getter]
-    fn iterations(&self) -> usize {
-        self.inner.passes
-    }
-    /// `χ²` before the first pass.
-    #[getter]
-    fn initial_chi2(&self) -> f64 {
-        self.inner.initial_chi2
-    }
-    /// `χ²` after the last pass.
-    #[getter]
-    fn final_chi2(&self) -> f64 {
-        self.inner.final_chi2
-    }
-    /// The fields as a plain dict (e.g. for JSON).
-    fn as_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        ReportFields::as_dict(self, py)
-    }
-    fn __getitem__<'py>(&self, py: Python<'py>, key: &str) -> PyResult<Bound<'py, PyAny>> {
-        self.item(py, key)
-    }
-    fn __repr__(&self, py: Python<'_>) -> PyResult<String> {
-        self.repr(py)
-    }
-}
-
-/// What `ExperienceMap.correct` did, with either corrector (see `hippo_map::CorrectionReport`).
-#[pyclass(
-    name = "CorrectionReport",
-    module = "hippo_nav._core",
-    frozen,
-    eq,
-    mapping
-)]
-#[derive(PartialEq)]
-pub struct PyCorrectionReport {
-    inner: CorrectionReport,
-}
-
-impl ReportFields for PyCorrectionReport {
-    const NAME: &'static str = "CorrectionReport";
-    fn fields<'py>(&self, py: Python<'py>) -> PyResult<Vec<(&'static str, Bound<'py, PyAny>)>> {
-        let r = &self.inner;
-        Ok(vec![
-            ("iterations", any(py, r.iterations)?),
-            ("initial_chi2", any(py, r.initial_chi2)?),
-            ("final_chi2", any(py, r.final_chi2)?),
-            ("converged", any(py, r.converged)?),
-        ])
-    }
-}
-
-#[pymethods]
-impl PyCorrectionReport {
-    /// Relaxation passes or Levenberg–Marquardt iterations.
-    #[getter]
-    fn iterations(&self) -> usize {
-        self.inner.iterations
-    }
-    /// `χ²` of the map before the correction (after initialisation for least squares).
-    #[getter]
-    fn initial_chi2(&self) -> f64 {
-        self.inner.initial_chi2
-    }
-    /// `χ²` after the correction.
-    #[getter]
-    fn final_chi2(&self) -> f64 {
-        self.inner.final_chi2
-    }
-    /// Whether least squares converged (always False for relaxation, which has no test).
-    #[getter]
-    fn converged(&self) -> bool {
-        self.inner.converged
-    }
-    /// The fields as a plain dict (e.g. for JSON).
-    fn as_dict<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        ReportFields::as_dict(self, py)
-    }
-    fn __getitem__<'py>(&self, py: Python<'py>, key: &str) -> PyResult<Bound<'py, PyAny>> {
-        self.item(py, key)
-    }
-    fn __repr__(&self, py: Python<'_>) -> PyResult<String> {
-        self.repr(py)
+report! {
+    /// What `ExperienceMap.correct` did, with either corrector (see `hippo_map::CorrectionReport`).
+    "CorrectionReport" PyCorrectionReport from CorrectionReport, |r| {
+        /// Relaxation passes or Levenberg–Marquardt iterations.
+        iterations: usize = r.iterations,
+        /// `χ²` of the map before the correction (after initialisation for least squares).
+        initial_chi2: f64 = r.initial_chi2,
+        /// `χ²` after the correction.
+        final_chi2: f64 = r.final_chi2,
+        /// Whether least squares converged (always False for relaxation, which has no test).
+        converged: bool = r.converged,
     }
 }
 
@@ -369,12 +175,7 @@ fn information_of(a: &PyReadonlyArrayDyn<'_, f64>) -> PyResult<[[f64; 3]; 3]> {
             a.shape()
         )));
     }
-    let v: Vec<f64> = a.as_array().iter().copied().collect();
-    if v.iter().any(|x| !x.is_finite()) {
-        return Err(HippoNavError::new_err(
-            "`information` holds a NaN or infinity",
-        ));
-    }
+    let v = flat_f64("information", a, &[3, 3])?;
     Ok([[v[0], v[1], v[2]], [v[3], v[4], v[5]], [v[6], v[7], v[8]]])
 }
 
@@ -382,10 +183,6 @@ fn information_of(a: &PyReadonlyArrayDyn<'_, f64>) -> PyResult<[[f64; 3]; 3]> {
 #[pyclass(name = "MapFrameOutcome", module = "hippo_nav._core", frozen)]
 pub struct PyFrameOutcome {
     inner: FrameOutcome,
-}
-
-fn pose_tuple(p: Option<Pose2>) -> Option<(f64, f64, f64)> {
-    p.map(|p| (p.x, p.y, p.yaw))
 }
 
 #[pymethods]
@@ -426,13 +223,13 @@ impl PyFrameOutcome {
     }
     /// The agent's pose `(x, y, yaw)` in the map frame; None while lost.
     #[getter]
-    fn world_from_agent(&self) -> Option<(f64, f64, f64)> {
-        pose_tuple(self.inner.world_from_agent)
+    fn world_from_agent(&self) -> Option<PoseTuple> {
+        self.inner.world_from_agent.map(pose_tuple)
     }
     /// The agent's pose relative to its vertex (the odometry since that vertex); None while lost.
     #[getter]
-    fn vertex_from_agent(&self) -> Option<(f64, f64, f64)> {
-        pose_tuple(self.inner.vertex_from_agent)
+    fn vertex_from_agent(&self) -> Option<PoseTuple> {
+        self.inner.vertex_from_agent.map(pose_tuple)
     }
     fn __eq__(&self, other: &Self) -> bool {
         self.inner == other.inner
@@ -493,7 +290,7 @@ impl PyPoseGraph {
                 .add_edge(Edge {
                     from: a as usize,
                     to: b as usize,
-                    from_to: Pose2::new(z[3 * k], z[3 * k + 1], z[3 * k + 2]),
+                    from_from_to: Pose2::new(z[3 * k], z[3 * k + 1], z[3 * k + 2]),
                     information: [[i[0], i[1], i[2]], [i[3], i[4], i[5]], [i[6], i[7], i[8]]],
                     kind: if loops[k] {
                         EdgeKind::Loop
@@ -548,7 +345,7 @@ impl PyPoseGraph {
 
     /// `(E, 3)` measurements `i_from_j` `(x_m, y_m, yaw_rad)` of the edges.
     fn measurements<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f64>>> {
-        poses_array(py, self.graph.edges.iter().map(|e| e.from_to))
+        poses_array(py, self.graph.edges.iter().map(|e| e.from_from_to))
     }
 
     /// `(E, 3, 3)` information matrices (order x, y, yaw) of the edges.
@@ -615,18 +412,18 @@ impl PyPoseGraph {
             },
         )?;
         let graph = &mut self.graph;
-        let inner = py.detach(|| optimize(graph, &params)).map_err(to_py_err)?;
-        Ok(PySolveReport { inner })
+        let report = py.detach(|| optimize(graph, &params)).map_err(to_py_err)?;
+        Ok(report.into())
     }
 
     /// RatSLAM-style relaxation passes.
     #[pyo3(signature = (passes=100, gain=0.5))]
     fn relax(&mut self, py: Python<'_>, passes: usize, gain: f64) -> PyResult<PyRelaxationReport> {
         let graph = &mut self.graph;
-        let inner = py
+        let report = py
             .detach(|| relax(graph, &RelaxationParams { gain, passes }))
             .map_err(to_py_err)?;
-        Ok(PyRelaxationReport { inner })
+        Ok(report.into())
     }
 
     /// Replace the poses by dead reckoning along the odometry edges.
@@ -647,36 +444,28 @@ impl PyExperienceMap {
     #[new]
     #[pyo3(signature = (params_json=None))]
     fn new(params_json: Option<&str>) -> PyResult<Self> {
-        let params: MapParams = match params_json {
-            None => MapParams::default(),
-            Some(s) => serde_json::from_str(s)
-                .map_err(|e| HippoNavError::new_err(format!("invalid map params: {e}")))?,
-        };
+        let params: MapParams = params_from_json(params_json, "map params")?;
         Ok(Self {
             map: ExperienceMap::new(params).map_err(to_py_err)?,
         })
     }
 
-    /// The default `MapParams` as JSON (the single source of the defaults).
-    #[staticmethod]
-    fn default_params_json() -> PyResult<String> {
-        serde_json::to_string(&MapParams::default()).map_err(to_py_err)
-    }
-
+    /// The resolved parameters as JSON.
     fn params_json(&self) -> PyResult<String> {
-        serde_json::to_string(self.map.params()).map_err(to_py_err)
+        params_to_json(self.map.params())
     }
 
-    /// One camera frame. `odometry_step` is `previous_frame_from_frame` as `(dx_forward_m, dy_left_m,
-    /// dyaw_rad)`. `loop_closure` (geometric mode) is `(target_vertex, agent_from_target (x, y, yaw),
-    /// information (3, 3))`, a closure measured against the frame that made the target vertex.
+    /// One camera frame. `view_cell_id`: the active view cell, None before the first informative view.
+    /// `odometry_step` is `previous_frame_from_frame` as `(dx_forward_m, dy_left_m, dyaw_rad)`.
+    /// `loop_closure` (geometric mode) is `(target_vertex, agent_from_target (x, y, yaw), information
+    /// (3, 3))`, a closure measured against the frame that made the target vertex.
     #[pyo3(signature = (view_cell_id, place_code_rad, heading_code_rad, odometry_step, elapsed_s, loop_closure=None))]
     fn on_frame(
         &mut self,
-        view_cell_id: u64,
+        view_cell_id: Option<u64>,
         place_code_rad: (f64, f64),
         heading_code_rad: f64,
-        odometry_step: (f64, f64, f64),
+        odometry_step: PoseTuple,
         elapsed_s: f64,
         loop_closure: Option<LoopArg<'_>>,
     ) -> PyResult<PyFrameOutcome> {
@@ -689,7 +478,7 @@ impl PyExperienceMap {
             }),
         };
         let input = FrameInput {
-            view_cell_id,
+            view_cell_id: view_cell_id.unwrap_or(NO_VIEW_CELL),
             place_code_rad: [place_code_rad.0, place_code_rad.1],
             heading_code_rad,
             odometry_step: pose_of("odometry_step", odometry_step)?,
@@ -706,7 +495,7 @@ impl PyExperienceMap {
     fn loop_candidates(
         &self,
         vertices: Vec<usize>,
-        odometry_step: (f64, f64, f64),
+        odometry_step: PoseTuple,
     ) -> PyResult<Vec<CandidateTuple>> {
         let step = pose_of("odometry_step", odometry_step)?;
         Ok(self
@@ -715,14 +504,17 @@ impl PyExperienceMap {
             .map_err(to_py_err)?
             .into_iter()
             .map(|c| {
-                let p = c.predicted_agent_from_vertex;
-                (c.vertex, (p.x, p.y, p.yaw), c.distance_m)
+                (
+                    c.vertex,
+                    pose_tuple(c.predicted_agent_from_vertex),
+                    c.distance_m,
+                )
             })
             .collect())
     }
 
     /// Vertices within `radius_m` of where `odometry_step` takes the agent, nearest first.
-    fn vertices_near(&self, radius_m: f64, odometry_step: (f64, f64, f64)) -> PyResult<Vec<usize>> {
+    fn vertices_near(&self, radius_m: f64, odometry_step: PoseTuple) -> PyResult<Vec<usize>> {
         if !(radius_m.is_finite() && radius_m >= 0.0) {
             return Err(HippoNavError::new_err(format!(
                 "radius_m must be finite and >= 0, got {radius_m}"
@@ -751,7 +543,7 @@ impl PyExperienceMap {
         view_cell_id: u64,
         place_code_rad: (f64, f64),
         heading_code_rad: f64,
-        world_from_vertex: (f64, f64, f64),
+        world_from_vertex: PoseTuple,
         odometer_m: f64,
     ) -> PyResult<usize> {
         self.map
@@ -772,7 +564,7 @@ impl PyExperienceMap {
         &mut self,
         from_vertex: usize,
         to_vertex: usize,
-        from_from_to: (f64, f64, f64),
+        from_from_to: PoseTuple,
         elapsed_s: f64,
         is_loop: bool,
         information: Option<PyReadonlyArrayDyn<'_, f64>>,
@@ -812,20 +604,19 @@ impl PyExperienceMap {
     }
 
     #[getter]
-    fn world_from_agent(&self) -> Option<(f64, f64, f64)> {
-        self.map.world_from_agent().map(|p| (p.x, p.y, p.yaw))
+    fn world_from_agent(&self) -> Option<PoseTuple> {
+        self.map.world_from_agent().map(pose_tuple)
     }
 
     /// Pose `(x, y, yaw)` of one vertex in the map frame.
-    fn vertex_pose(&self, vertex: usize) -> PyResult<(f64, f64, f64)> {
+    fn vertex_pose(&self, vertex: usize) -> PyResult<PoseTuple> {
         let v = self.map.vertices().get(vertex).ok_or_else(|| {
             HippoNavError::new_err(format!(
                 "vertex {vertex} does not exist (the map holds {})",
                 self.map.vertices().len()
             ))
         })?;
-        let p = v.world_from_vertex;
-        Ok((p.x, p.y, p.yaw))
+        Ok(pose_tuple(v.world_from_vertex))
     }
 
     /// `(N, 3)` vertex poses `(x_m, y_m, yaw_rad)` in the map frame.
@@ -941,8 +732,8 @@ impl PyExperienceMap {
             }
         };
         let map = &mut self.map;
-        let inner = py.detach(|| map.correct(&corrector)).map_err(to_py_err)?;
-        Ok(PyCorrectionReport { inner })
+        let report = py.detach(|| map.correct(&corrector)).map_err(to_py_err)?;
+        Ok(report.into())
     }
 
     /// Forget the agent's place: frames only look for a vertex to resume from.

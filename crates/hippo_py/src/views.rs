@@ -3,11 +3,11 @@
 //! Templates cross as (height, width) float arrays of any layout (float32 or float64; copied once into a
 //! contiguous float32 buffer). Parameters cross as JSON of `ViewCellParams` (the Rust defaults are the
 //! single source). Searches run with the interpreter released.
+use crate::convert::{params_from_json, params_to_json, to_numpy};
 use crate::errors::{to_py_err, HippoNavError};
 use hippo_views::{ViewCellParams, ViewCells, ViewObservation, ViewStatus};
 use numpy::{
-    IntoPyArray, PyArray1, PyArrayDyn, PyArrayMethods, PyReadonlyArray1, PyReadonlyArrayDyn,
-    PyUntypedArrayMethods,
+    IntoPyArray, PyArray1, PyArrayDyn, PyReadonlyArray1, PyReadonlyArrayDyn, PyUntypedArrayMethods,
 };
 use pyo3::prelude::*;
 
@@ -27,7 +27,7 @@ fn template_vec(t: &TemplateArg<'_>, p: &ViewCellParams) -> PyResult<Vec<f32>> {
     if shape != [p.height_px, p.width_px] {
         return Err(HippoNavError::new_err(format!(
             "template has shape {shape:?}, expected ({}, {}) = (height_px, width_px); make it with \
-             hippo_nav.views.ViewCells.template_from_image using the same parameters",
+             hippo_nav.view_cells.TemplateViewCells.template_from_image with the same parameters",
             p.height_px, p.width_px
         )));
     }
@@ -126,7 +126,7 @@ impl PyViewObservation {
 }
 
 /// Local view cells: stored templates and a fast exact best-match search. Private: wrapped by
-/// `hippo_nav.views.ViewCells`.
+/// `hippo_nav.view_cells.TemplateViewCells`.
 #[pyclass(name = "_ViewCells", module = "hippo_nav._core")]
 pub struct PyViewCells {
     cells: ViewCells,
@@ -134,24 +134,20 @@ pub struct PyViewCells {
 
 #[pymethods]
 impl PyViewCells {
-    /// `config_json`: JSON of every view-cell parameter (use `hippo_nav.views.ViewCellConfig`); None = defaults.
+    /// `params_json`: JSON of every view-cell parameter (use `hippo_nav.view_cells.TemplateViewConfig`);
+    /// None = defaults.
     #[new]
-    #[pyo3(signature = (config_json=None))]
-    fn new(config_json: Option<&str>) -> PyResult<Self> {
-        let params: ViewCellParams = match config_json {
-            None => ViewCellParams::default(),
-            Some(s) => serde_json::from_str(s)
-                .map_err(|e| HippoNavError::new_err(format!("invalid view-cell config: {e}")))?,
-        };
+    #[pyo3(signature = (params_json=None))]
+    fn new(params_json: Option<&str>) -> PyResult<Self> {
+        let params: ViewCellParams = params_from_json(params_json, "view-cell config")?;
         Ok(Self {
             cells: ViewCells::new(params).map_err(to_py_err)?,
         })
     }
 
     /// The resolved parameters as JSON.
-    fn config_json(&self) -> PyResult<String> {
-        serde_json::to_string(self.cells.params())
-            .map_err(|e| HippoNavError::new_err(e.to_string()))
+    fn params_json(&self) -> PyResult<String> {
+        params_to_json(self.cells.params())
     }
 
     fn __len__(&self) -> usize {
@@ -242,30 +238,22 @@ impl PyViewCells {
     ) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
         let p = self.cells.params();
         let t = self.cells.template(cell_id).map_err(to_py_err)?;
-        t.into_pyarray(py).reshape(vec![p.height_px, p.width_px])
+        to_numpy(py, t, &[p.height_px, p.width_px])
     }
 
     /// Every stored template, shape (len, height, width).
     fn templates<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArrayDyn<f32>>> {
         let p = self.cells.params();
-        self.cells.templates().into_pyarray(py).reshape(vec![
-            self.cells.len(),
-            p.height_px,
-            p.width_px,
-        ])
+        to_numpy(
+            py,
+            self.cells.templates(),
+            &[self.cells.len(), p.height_px, p.width_px],
+        )
     }
-}
-
-/// Default view-cell parameters as JSON (the single source of defaults).
-#[pyfunction]
-fn default_view_config_json() -> PyResult<String> {
-    serde_json::to_string(&ViewCellParams::default())
-        .map_err(|e| HippoNavError::new_err(e.to_string()))
 }
 
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PyViewCells>()?;
     m.add_class::<PyViewObservation>()?;
-    m.add_function(wrap_pyfunction!(default_view_config_json, m)?)?;
     Ok(())
 }

@@ -26,6 +26,7 @@ fn better(a: Candidate, b: Candidate) -> Candidate {
 /// Best stored template for a query.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ViewMatch {
+    /// The closest stored cell.
     pub cell_id: usize,
     /// Normalised difference in [0, 1] (see `compare`).
     pub difference: f32,
@@ -47,11 +48,13 @@ pub enum ViewStatus {
 /// Result of `ViewCells::observe`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ViewObservation {
+    /// New, familiar or uninformative.
     pub status: ViewStatus,
     /// The matched or created cell; `None` when the view was uninformative.
     pub cell_id: Option<usize>,
     /// Best difference found among the cells stored before this view (1 when there were none).
     pub difference: f32,
+    /// Best horizontal shift of the match (pixels).
     pub shift_px: i32,
     /// Heading of the camera now minus its heading when the cell was stored (counter-clockwise positive).
     pub relative_heading_rad: f64,
@@ -73,6 +76,7 @@ pub struct ViewCells {
 }
 
 impl ViewCells {
+    /// An empty store with these parameters (checked).
     pub fn new(params: ViewCellParams) -> Result<Self, ViewError> {
         params.validate()?;
         Ok(Self {
@@ -82,6 +86,7 @@ impl ViewCells {
         })
     }
 
+    /// The store's parameters.
     pub fn params(&self) -> &ViewCellParams {
         &self.params
     }
@@ -91,6 +96,7 @@ impl ViewCells {
         self.summaries.len()
     }
 
+    /// Whether no cell is stored.
     pub fn is_empty(&self) -> bool {
         self.summaries.is_empty()
     }

@@ -16,6 +16,7 @@
 //! [`ViewCells::observe_among`] and [`ViewCells::best_match_among`] run the same search over a given subset
 //! of cells (e.g. those stored near the current place estimate), so that a long run's per-frame cost is set
 //! by the subset, not by the store.
+#![warn(missing_docs)]
 mod cells;
 pub mod compare;
 mod error;

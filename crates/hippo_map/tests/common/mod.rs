@@ -73,7 +73,7 @@ pub fn circle_loop(
             .add_edge(Edge {
                 from: i - 1,
                 to: i,
-                from_to: z,
+                from_from_to: z,
                 information: info,
                 kind: EdgeKind::Odometry,
             })
@@ -89,7 +89,7 @@ pub fn circle_loop(
         .add_edge(Edge {
             from: n - 1,
             to: 0,
-            from_to: z,
+            from_from_to: z,
             information: info,
             kind: EdgeKind::Loop,
         })
@@ -156,7 +156,7 @@ pub fn manhattan_world(
             .add_edge(Edge {
                 from: i - 1,
                 to: i,
-                from_to: z,
+                from_from_to: z,
                 information: info,
                 kind: EdgeKind::Odometry,
             })
@@ -180,7 +180,7 @@ pub fn manhattan_world(
                                 .add_edge(Edge {
                                     from: j,
                                     to: i,
-                                    from_to: z,
+                                    from_from_to: z,
                                     information: info,
                                     kind: EdgeKind::Loop,
                                 })
@@ -223,7 +223,7 @@ pub fn add_outliers(graph: &mut PoseGraph, count: usize, seed: u64) {
             .add_edge(Edge {
                 from: a,
                 to: b,
-                from_to: z,
+                from_from_to: z,
                 information,
                 kind: EdgeKind::Loop,
             })
