@@ -3,7 +3,7 @@
 from hippo_nav._core import find_bumps, fuse_modules
 from hippo_nav.engine.config import MODULE_NAMES, N_MODULES, EngineConfig, GridConfig, HdConfig, PlaceConfig
 from hippo_nav.engine.network import Bump, ModuleReadout, SpatialMemory, SpatialReadout, ViewPatterns
-from hippo_nav.engine.views import CompactView, GridBumpCode, HdBumpCode
+from hippo_nav.engine.recall import CompactView, GridBumpCode, HdBumpCode
 
 __all__ = [
     "MODULE_NAMES",

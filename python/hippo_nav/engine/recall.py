@@ -1,4 +1,4 @@
-"""Compact stored views: the numbers a view cell needs to recall the network state (docs/spec.md §7).
+"""What a view cell remembers of the network: the few numbers that recall its state (docs/spec.md §7).
 
 A view cell stores the network state at the moment its view was first seen and injects it back on a revisit
 (`ViewPatterns`: the HD θ-profile and each grid module's layer-II pattern). In full that is ~50 kB a cell

@@ -1,4 +1,4 @@
-"""Local view cells (docs/spec.md §7): templates from images (OpenCV), matching in Rust (`hippo_views`).
+"""The paper's view descriptor (docs/spec.md §7): whole-image templates (OpenCV), matching in Rust (`hippo_views`).
 
 A template is the left image cropped to the rows `crop_rows_frac` (dropping sky and bonnet), shrunk to
 `height_px × width_px` with area averaging (`cv2.INTER_AREA`), then patch-normalised: each pixel minus the
@@ -20,7 +20,7 @@ since the cell was stored, by `shift_px · field_of_view_rad / width_px`.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, ClassVar
 
 import cv2
 import numpy as np
@@ -30,8 +30,9 @@ from pydantic import BaseModel, ConfigDict
 from hippo_nav import _core
 from hippo_nav._core import HippoNavError, ViewObservation
 from hippo_nav._defaults import rust_default
+from hippo_nav.datasets.base import StereoCalibration, StereoFrame
 
-__all__ = ["ViewCellConfig", "ViewCells", "ViewObservation", "field_of_view_rad"]
+__all__ = ["TemplateViewCells", "TemplateViewConfig", "field_of_view_rad"]
 
 
 def _default(name: str) -> Any:
@@ -43,7 +44,7 @@ def _default(name: str) -> Any:
 _NOISE_FLOOR_GREY = 5.0
 
 
-class ViewCellConfig(BaseModel):
+class TemplateViewConfig(BaseModel):
     """View-cell parameters (see `crates/hippo_views/src/params.rs` for their meaning and checks)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
@@ -60,21 +61,43 @@ class ViewCellConfig(BaseModel):
 
 
 def field_of_view_rad(fx_px: float, image_width_px: int) -> float:
-    """Horizontal field of view of a pinhole camera, for `ViewCellConfig.field_of_view_rad`."""
+    """Horizontal field of view of a pinhole camera, for `TemplateViewConfig.field_of_view_rad`."""
     if not (fx_px > 0 and image_width_px > 0):
         raise HippoNavError(f"need fx_px > 0 and image_width_px > 0, got {fx_px} and {image_width_px}")
     return 2.0 * math.atan(image_width_px / (2.0 * fx_px))
 
 
-class ViewCells:
-    """Local view cells: `template_from_image` then `observe` each frame."""
+class TemplateViewCells:
+    """Local view cells of whole-image templates, a `hippo_nav.view_cells.ViewDescriptor`:
+    `template_from_image` (or `describe`) then `observe` each frame."""
 
-    def __init__(self, config: ViewCellConfig | None = None) -> None:
-        self.config = config or ViewCellConfig()
+    describe_on_worker: ClassVar[bool] = False
+    """The template (≈ 0.1 ms a frame) is made on the back end, beside the match."""
+
+    def __init__(self, config: TemplateViewConfig | None = None) -> None:
+        self.config = config or TemplateViewConfig()
         self._cells = _core._ViewCells(self.config.model_dump_json())
+
+    @classmethod
+    def for_camera(cls, config: TemplateViewConfig, calibration: StereoCalibration) -> TemplateViewCells:
+        """View cells for one camera: unless `config` sets `field_of_view_rad`, it is the camera's (from
+        `calibration`), so that template shifts convert to the right relative heading on any camera."""
+        if "field_of_view_rad" not in config.model_fields_set:
+            fov = field_of_view_rad(calibration.fx, calibration.image_size_px[0])
+            config = config.model_copy(update={"field_of_view_rad": fov})
+        return cls(config)
 
     def __len__(self) -> int:
         return len(self._cells)
+
+    def describe(self, frame: StereoFrame) -> np.ndarray:
+        """The template of the frame's left image."""
+        return self.template_from_image(frame.left)
+
+    def image_rows(self, height_px: int) -> tuple[int, int]:
+        """The rows the template is cut from (`crop_rows_frac` of an image `height_px` high)."""
+        top, bottom = (round(float(f) * height_px) for f in self.config.crop_rows_frac)
+        return top, bottom
 
     def template_from_image(self, gray: np.ndarray) -> np.ndarray:
         """(height_px, width_px) float32 template of a gray image (any layout, uint8 or float in 0–255)."""

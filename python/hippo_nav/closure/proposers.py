@@ -1,0 +1,185 @@
+"""Closure proposers: the plug point that proposes measured loop closures for the experience map.
+
+Python proposes and measures; the map decides. Once per frame (in the map's geometric closure mode) the
+system asks its proposer for a closure (`propose`): a target vertex, the target's pose seen from the agent
+(`agent_from_target`, planar `(forward_m, left_m, yaw_rad)`, `hippo_nav.geometry`) and its information
+(3 × 3, inverse covariance). The experience map (Rust, `hippo_map`, docs/map.md) then accepts it as a loop
+link or rejects it (too recent, outside the loop gate around the odometry's prediction, inconsistent with
+the graph: `MapFrameOutcome.rejected_closure`). After the map has taken the frame, `after_map` lets the
+proposer keep what a later closure onto a new vertex needs (a keyframe, a submap) — slow work goes to the
+`Worker` it is given, so it may run beside the next frame's odometry — and note an accepted closure.
+`finish` waits for work still pending at the end of a run. What a proposer keeps (`stored`,
+`stored_bytes`) is reported in `metrics.json` (`keyframes`, `keyframe_bytes`).
+
+The built-in proposer, `ViewCellPnpClosure`: a familiar view suggests a place the map knows; the
+candidates are the vertex where that view cell was first seen and its odometry neighbours, kept by the map
+when far enough back along the path and inside its loop gate (`ExperienceMap.loop_candidates`); the current
+stereo frame measures the nearest `candidates_per_frame` against their stored keyframes (ORB + PnP,
+`LoopMeasurer`) and the first verified one is proposed, at most one accepted closure per
+`closure_spacing_m` of travel. Every new vertex keeps its frame's keyframe.
+"""
+
+from __future__ import annotations
+
+import logging
+from concurrent.futures import Future
+from dataclasses import dataclass
+from typing import Protocol
+
+import numpy as np
+
+from hippo_nav.closure.keyframes import ClosureConfig, Keyframe, KeyframeExtractor
+from hippo_nav.closure.measure import LoopMeasurer
+from hippo_nav.datasets.base import StereoCalibration, StereoFrame
+from hippo_nav.map import ExperienceMap, MapFrameOutcome
+from hippo_nav.workers import Worker
+
+log = logging.getLogger("hippo_nav.pipeline")
+
+__all__ = ["ClosureAttempt", "ClosureContext", "ClosureProposer", "ProposedClosure", "ViewCellPnpClosure"]
+
+
+@dataclass(frozen=True)
+class ClosureContext:
+    """What a proposer sees of one frame, before the map takes it."""
+
+    frame: StereoFrame
+    planar_step: tuple[float, float, float]  # the map's odometry step to this frame (forward, left, yaw)
+    anchor_vertex: (
+        int | None
+    )  # the vertex where this frame's familiar view was first seen (None: not familiar)
+    experience_map: ExperienceMap
+
+
+@dataclass(frozen=True)
+class ProposedClosure:
+    """A measured loop closure, as the map takes it."""
+
+    target_vertex: int
+    agent_from_target: tuple[float, float, float]  # planar (forward m, left m, yaw rad)
+    information: np.ndarray  # (3, 3) inverse covariance of agent_from_target
+
+    def map_input(self) -> tuple[int, tuple[float, float, float], np.ndarray]:
+        """The `loop_closure` argument of `ExperienceMap.on_frame`."""
+        return self.target_vertex, self.agent_from_target, self.information
+
+
+@dataclass(frozen=True)
+class ClosureAttempt:
+    """A proposer's answer for one frame: a closure or None, and a note for `frames.csv`'s `closure_note`
+    ("" when nothing was tried, "measured" when a closure is proposed, otherwise why not)."""
+
+    closure: ProposedClosure | None = None
+    note: str = ""
+
+
+NO_ATTEMPT = ClosureAttempt()
+
+
+class ClosureProposer(Protocol):
+    """Proposes measured loop closures (module doc)."""
+
+    def propose(self, context: ClosureContext) -> ClosureAttempt: ...
+
+    def after_map(
+        self, frame: StereoFrame, outcome: MapFrameOutcome, experience_map: ExperienceMap, worker: Worker
+    ) -> None: ...
+
+    def finish(self) -> None: ...
+
+    @property
+    def stored(self) -> int:
+        """How many places the proposer keeps (keyframes, submaps)."""
+        ...
+
+    @property
+    def stored_bytes(self) -> int: ...
+
+
+class ViewCellPnpClosure:
+    """Closures proposed by familiar view cells, measured by stereo PnP against the keyframe of the vertex
+    where the view was first seen (module doc). `keyframes`: vertex → its stereo keyframe."""
+
+    def __init__(self, calibration: StereoCalibration, config: ClosureConfig | None = None) -> None:
+        self.config = config or ClosureConfig()
+        self.extract = KeyframeExtractor(calibration, self.config)
+        self.measurer = LoopMeasurer(calibration, self.config)
+        self.keyframes: dict[int, Keyframe] = {}
+        # Keyframes still being extracted (vertex → future); see `after_map`.
+        self._pending: dict[int, Future[Keyframe]] = {}
+        self._made: Keyframe | None = None  # the current frame's keyframe, when a closure attempt made one
+        self._proposed = False  # whether the current frame proposed a closure
+        self._closure_odometer_m = -np.inf
+
+    @property
+    def stored(self) -> int:
+        return len(self.keyframes)
+
+    @property
+    def stored_bytes(self) -> int:
+        return int(sum(k.nbytes for k in self.keyframes.values()))
+
+    def propose(self, context: ClosureContext) -> ClosureAttempt:
+        """The first candidate vertex whose keyframe the current frame measures (module doc)."""
+        self._made, self._proposed = None, False
+        cfg = self.config
+        experience_map, frame = context.experience_map, context.frame
+        if experience_map.odometer_m - self._closure_odometer_m < cfg.closure_spacing_m:
+            return NO_ATTEMPT
+        anchor = context.anchor_vertex
+        if anchor is None:
+            return NO_ATTEMPT
+        nearby = [v for v in (anchor - 1, anchor, anchor + 1) if 0 <= v < len(experience_map)]
+        candidates = experience_map.loop_candidates(nearby, context.planar_step)
+        if not candidates:
+            return ClosureAttempt(None, "no_candidate")
+        try:
+            current = self.extract(frame.left, frame.right)
+        except Exception as err:  # noqa: BLE001 - a frame without a keyframe closes no loop; the run goes on
+            log.warning("frame %s: no stereo keyframe (%s); no loop closure attempted", frame.index, err)
+            return ClosureAttempt(None, "no_current_keyframe")
+        self._made = current
+        why = "no_keyframe"
+        for vertex, _predicted, _distance in candidates[: cfg.candidates_per_frame]:
+            keyframe = self._keyframe(vertex)
+            if keyframe is None:
+                continue
+            measurement, why = self.measurer.measure(keyframe, current)
+            if measurement is not None:
+                closure = ProposedClosure(vertex, measurement.agent_from_target, measurement.information)
+                self._proposed = True
+                return ClosureAttempt(closure, "measured")
+        return ClosureAttempt(None, why)
+
+    def after_map(
+        self, frame: StereoFrame, outcome: MapFrameOutcome, experience_map: ExperienceMap, worker: Worker
+    ) -> None:
+        """A new vertex keeps this frame's keyframe: the one a closure attempt made, or one extracted on
+        `worker` (beside the next frame's odometry: it is first needed when the agent comes back, at least
+        `min_loop_separation_m` later). An accepted closure restarts the spacing."""
+        if self._proposed and outcome.loop_closure is not None:
+            self._closure_odometer_m = experience_map.odometer_m
+        if not outcome.created or outcome.vertex is None:
+            return
+        vertex = int(outcome.vertex)
+        if self._made is not None:
+            self.keyframes[vertex] = self._made
+            return
+        self._pending[vertex] = worker.submit(self.extract, frame.left, frame.right)
+        if self._pending[vertex].done():  # done at once (inline): take it (or report its failure) now
+            self._keyframe(vertex)
+
+    def finish(self) -> None:
+        """Take every keyframe still being extracted."""
+        for vertex in list(self._pending):
+            self._keyframe(vertex)
+
+    def _keyframe(self, vertex: int) -> Keyframe | None:
+        """The keyframe of `vertex` (waiting for it if it is still being extracted), or None."""
+        pending = self._pending.pop(vertex, None)
+        if pending is not None:
+            try:
+                self.keyframes[vertex] = pending.result()
+            except Exception as err:  # noqa: BLE001 - a keyframe costs closures to one vertex, never the run
+                log.warning("vertex %d: no stereo keyframe (%s); no loop can close onto it", vertex, err)
+        return self.keyframes.get(vertex)

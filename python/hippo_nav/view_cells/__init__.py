@@ -1,0 +1,35 @@
+"""Local view cells (docs/spec.md §7): view descriptors behind one protocol, and what they observe.
+
+- `base.py`: the `ViewDescriptor` protocol every descriptor implements, its `ViewObservation` answer, and
+  `NO_VIEW_CELL`.
+- `template.py`: the paper's descriptor, a patch-normalised whole-image template matched with a horizontal
+  shift search in Rust (`crates/hippo_views`); the reference choice (`TemplateViewCells`).
+
+```python
+from hippo_nav.datasets import KittiOdometry
+from hippo_nav.synthetic import DEMO_SEQUENCE, demo_sequence
+from hippo_nav.view_cells import TemplateViewCells, TemplateViewConfig
+dataset = KittiOdometry(demo_sequence(), DEMO_SEQUENCE, stop=3)
+cells = TemplateViewCells.for_camera(TemplateViewConfig(), dataset.calibration)
+first = cells.observe(cells.describe(dataset[0]))           # a new cell
+again = cells.observe(cells.describe(dataset[0]))           # the same view: familiar, cell 0
+(first.status, first.cell_id), (again.status, again.cell_id)   # (('new', 0), ('familiar', 0))
+```
+
+Which descriptor a run uses is the config's `parts.view_cells` (`hippo_nav.pipeline.parts`); how a cell's
+stored network state is kept and recalled: `hippo_nav.engine.recall`.
+"""
+
+from hippo_nav.view_cells.base import NO_VIEW_CELL, Observation, ViewDescriptor, ViewObservation, ViewStatus
+from hippo_nav.view_cells.template import TemplateViewCells, TemplateViewConfig, field_of_view_rad
+
+__all__ = [
+    "NO_VIEW_CELL",
+    "Observation",
+    "TemplateViewCells",
+    "TemplateViewConfig",
+    "ViewDescriptor",
+    "ViewObservation",
+    "ViewStatus",
+    "field_of_view_rad",
+]
