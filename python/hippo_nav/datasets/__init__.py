@@ -1,9 +1,11 @@
 """Stereo datasets: a small protocol (`StereoDataset`) and a registry with one loader file per dataset.
 
-Adding a dataset = one module with a class that implements `StereoDataset`, has a constructor
-`Loader(root, sequence, **kw)`, a static `detect(path) -> bool` and `OPTIONS` (the keywords it takes),
-plus one line in `LOADERS` below. `open_dataset(path, sequence)` picks the loader by name (`kind=`) or
-by detecting the layout, in the order of `LOADERS`:
+Adding a dataset = one module with a `StereoLoader` subclass (`base.py`: its class attributes `KIND`,
+`TITLE`, `LAYOUT`, `OPTIONS`, `DEFAULT_SEQUENCE`, a static `detect(path)`, a constructor
+`Loader(root, sequence, **options)` and `_frame(i)`), plus its class in `LOADERS` below; the CLI's
+`--dataset-kind` choices and its loader-option checks follow from the registry (docs/architecture.md).
+`open_dataset(path, sequence)` picks the loader by name (`kind=`) or by detecting the layout, in the order
+of `LOADERS`:
 
 | kind | layout | loader |
 |---|---|---|
@@ -18,22 +20,23 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from hippo_nav.datasets.base import StereoCalibration, StereoDataset, StereoFrame
+from hippo_nav.datasets.base import (
+    DatasetExtras,
+    StereoCalibration,
+    StereoDataset,
+    StereoFrame,
+    StereoLoader,
+)
 from hippo_nav.datasets.euroc import EurocStereo
 from hippo_nav.datasets.folder import StereoFolder
 from hippo_nav.datasets.kitti import KittiOdometry
 from hippo_nav.datasets.rosbag import RosbagStereo
 from hippo_nav.io.errors import DatasetError
 
-LOADERS: dict[str, Any] = {
-    "kitti": KittiOdometry,
-    "euroc": EurocStereo,
-    "rosbag": RosbagStereo,
-    "folder": StereoFolder,
+LOADERS: dict[str, type[StereoLoader]] = {
+    loader.KIND: loader for loader in (KittiOdometry, EurocStereo, RosbagStereo, StereoFolder)
 }
 """Loader classes by kind, in detection order."""
-
-KITTI_OPTIONS = ("start", "stop", "stride", "available_only")
 
 
 def detect_kind(path: str | Path) -> str | None:
@@ -50,7 +53,8 @@ def open_dataset(
 ) -> StereoDataset:
     """Open the stereo dataset at `path`: a KITTI root, an EuRoC/ASL sequence, a ROS bag, a stereo folder.
 
-    `sequence` names a KITTI sequence (default "00") or, for EuRoC and folders, a sub-folder of `path`.
+    `sequence` names a KITTI sequence (default: the loader's `DEFAULT_SEQUENCE`, "00" for KITTI) or, for
+    EuRoC and folders, a sub-folder of `path`.
     `kind` names a loader in `LOADERS`; without it the layout decides. Extra keywords (start, stop,
     stride, and each loader's own, e.g. `left_topic` for bags) go to the loader; a keyword the loader does
     not take is an error naming it.
@@ -64,14 +68,12 @@ def open_dataset(
     else:
         kind = detect_kind(path)
         if kind is None:
+            layouts = ", ".join(loader.LAYOUT for loader in LOADERS.values())
             raise DatasetError(
-                f"{path}: no loader recognises this path (known layouts: {', '.join(LOADERS)}); for KITTI "
-                "pass the folder that holds sequences/ and poses/, for EuRoC the folder that holds mav0/, "
-                "for a ROS bag the .bag file or ROS 2 bag folder, for a stereo folder one with left/, right/ "
-                "and calibration.yaml"
+                f"{path}: no loader recognises this path (known layouts: {', '.join(LOADERS)}); {layouts}"
             )
     loader = LOADERS[kind]
-    options = getattr(loader, "OPTIONS", KITTI_OPTIONS)
+    options = loader.OPTIONS
     unknown = sorted(k for k, v in kw.items() if k not in options and v is not None)
     if unknown:
         raise DatasetError(
@@ -79,14 +81,16 @@ def open_dataset(
             f"(it takes {', '.join(options)})"
         )
     kw = {k: v for k, v in kw.items() if k in options}
-    if kind == "kitti":
-        return loader(path, "00" if sequence is None else sequence, **kw)
-    return loader(path, sequence, **kw)
+    sequence = loader.DEFAULT_SEQUENCE if sequence is None else sequence
+    # Every registered loader is constructed as `Loader(root, sequence, **options)` (the contract); the base
+    # class's own constructor only sets the extras, so the type checker cannot see that signature.
+    return loader(path, sequence, **kw)  # type: ignore[call-arg, arg-type]
 
 
 __all__ = [
     "LOADERS",
     "DatasetError",
+    "DatasetExtras",
     "EurocStereo",
     "KittiOdometry",
     "RosbagStereo",
@@ -94,6 +98,7 @@ __all__ = [
     "StereoDataset",
     "StereoFolder",
     "StereoFrame",
+    "StereoLoader",
     "detect_kind",
     "open_dataset",
 ]

@@ -1,4 +1,14 @@
-"""The stereo dataset protocol every loader implements, and the calibration/frame records it yields.
+"""The stereo dataset protocol, the loader contract every loader follows, and the records they yield.
+
+- `StereoDataset`: what the pipeline reads (a protocol: any object with these members is a dataset).
+- `DatasetExtras`: the optional attributes a dataset may have beyond the protocol (a note, warnings, missing
+  frames, …), with their defaults; `DatasetExtras.of(dataset)` is the one place they are read.
+- `StereoLoader`: the base class of the registered loaders (`hippo_nav.datasets.LOADERS`). Its class
+  attributes are the contract `open_dataset` and the CLI read: `KIND` (the name), `TITLE` and `LAYOUT` (for
+  messages), `OPTIONS` (the keywords its constructor takes besides root and sequence),
+  `DEFAULT_SEQUENCE`; a static `detect(path)` recognises its layout; the constructor is
+  `Loader(root, sequence, **options)`. The base owns the shared skeleton: the extras with their defaults,
+  length, bounds-checked indexing (a subclass reads frame i in `_frame(i)`), iteration, ground truth.
 
 Conventions (docs/spec.md §9): images are rectified 8-bit gray; camera 0 is the left camera, camera 1
 the right one, displaced by `baseline_m` along camera 0's +x axis. Camera frame: x right, y down,
@@ -9,9 +19,11 @@ pair `P1[0, 3] = −fx · baseline_m`. Poses are `world_from_camera` (camera 0) 
 
 from __future__ import annotations
 
+from abc import ABC, abstractmethod
 from collections.abc import Iterator
-from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import ClassVar, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -81,3 +93,87 @@ class StereoDataset(Protocol):
     def ground_truth(self) -> np.ndarray | None:
         """(len, 4, 4) `world_from_camera` of camera 0 for the yielded frames, or None when unknown."""
         ...
+
+
+@dataclass(frozen=True)
+class DatasetExtras:
+    """What a dataset may tell besides the protocol, with the defaults of one that tells nothing."""
+
+    note: str = ""  # one line about what is used (e.g. "stereo images exist for 51 of 1101 frames")
+    warnings: list[str] = field(default_factory=list)  # data problems that are not errors
+    missing_frames: list[int] = field(default_factory=list)  # frame numbers skipped inside the range
+    frames_without_timestamp: int = 0
+    stride: int = 1  # the step between yielded frame numbers (a larger step is a hole in the data)
+
+    @classmethod
+    def of(cls, dataset: object) -> DatasetExtras:
+        """The extras of any dataset: its attributes of these names, or the defaults."""
+        default = cls()
+        return cls(
+            note=str(getattr(dataset, "note", default.note) or ""),
+            warnings=list(getattr(dataset, "warnings", default.warnings)),
+            missing_frames=[int(f) for f in getattr(dataset, "missing_frames", default.missing_frames)],
+            frames_without_timestamp=int(getattr(dataset, "frames_without_timestamp", 0)),
+            stride=int(getattr(dataset, "stride", 1) or 1),
+        )
+
+
+class StereoLoader(ABC):
+    """The base of every registered loader (module doc). A subclass sets `name`, `calibration`,
+    `frame_indices` and `timestamps_s` (and `_ground_truth`, poses of the yielded frames, when it has
+    them) in its constructor, after `super().__init__(stride)`, and ends it with `self._finish_note()`."""
+
+    KIND: ClassVar[str]
+    """The loader's name in `LOADERS` and `--dataset-kind`."""
+    TITLE: ClassVar[str]
+    """What it reads, in messages ("KITTI odometry roots")."""
+    LAYOUT: ClassVar[str]
+    """Which path to give it, for the error when no loader recognises a path."""
+    OPTIONS: ClassVar[tuple[str, ...]] = ("start", "stop", "stride")
+    """The keywords the constructor takes besides root and sequence."""
+    DEFAULT_SEQUENCE: ClassVar[str | None] = None
+    """The sequence opened when none is named."""
+
+    name: str
+    calibration: StereoCalibration
+    frame_indices: np.ndarray
+    timestamps_s: np.ndarray
+
+    def __init__(self, stride: int = 1) -> None:
+        self.note = ""
+        self.warnings: list[str] = []
+        self.missing_frames: list[int] = []
+        self.frames_without_timestamp = 0
+        self.stride = int(stride)
+        self._ground_truth: np.ndarray | None = None
+
+    @staticmethod
+    @abstractmethod
+    def detect(path: Path) -> bool:
+        """True when `path` has this loader's layout."""
+
+    @abstractmethod
+    def _frame(self, i: int) -> StereoFrame:
+        """Read yielded frame `i` (already checked to be in range)."""
+
+    def _finish_note(self) -> None:
+        """`note` ends with the warnings, so that one line says everything odd about the data."""
+        if self.warnings:
+            self.note = "; ".join([self.note, *self.warnings] if self.note else self.warnings)
+
+    def __len__(self) -> int:
+        return len(self.frame_indices)
+
+    def __getitem__(self, i: int) -> StereoFrame:
+        n = len(self.frame_indices)
+        if not -n <= i < n:
+            raise IndexError(f"frame {i} out of range for a dataset of {n} frames")
+        return self._frame(i)
+
+    def __iter__(self) -> Iterator[StereoFrame]:
+        for i in range(len(self)):
+            yield self[i]
+
+    def ground_truth(self) -> np.ndarray | None:
+        """(len, 4, 4) `world_from_camera` of camera 0 for the yielded frames, or None when unknown."""
+        return None if self._ground_truth is None else self._ground_truth.copy()

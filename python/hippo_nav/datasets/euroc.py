@@ -26,12 +26,11 @@ cameras: frames outside its span are left out (`trim_to_ground_truth`, see `hipp
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
-from hippo_nav.datasets.base import StereoFrame
+from hippo_nav.datasets.base import StereoFrame, StereoLoader
 from hippo_nav.datasets.common import (
     FrameSelection,
     check_increasing,
@@ -150,9 +149,12 @@ def read_ground_truth(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return np.array(stamps), np.stack(poses)
 
 
-class EurocStereo:
+class EurocStereo(StereoLoader):
     """An EuRoC / ASL stereo sequence as a rectified `StereoDataset` (layout and semantics: module doc)."""
 
+    KIND = "euroc"
+    TITLE = "EuRoC/ASL sequences"
+    LAYOUT = "for EuRoC the folder that holds mav0/"
     OPTIONS = ("start", "stop", "stride", "max_stereo_dt_s", "trim_to_ground_truth")
 
     def __init__(
@@ -165,6 +167,7 @@ class EurocStereo:
         max_stereo_dt_s: float | None = None,
         trim_to_ground_truth: bool = True,
     ) -> None:
+        super().__init__(stride)
         root = Path(root)
         folder = root / sequence if sequence else root
         mav0 = find_mav0(folder)
@@ -181,9 +184,6 @@ class EurocStereo:
             raise DatasetError(f"{folder}: not an EuRoC/ASL sequence (no mav0/cam0 folder){present}")
         self.root = mav0.parent if mav0.name == "mav0" else mav0
         self.name = f"euroc_{self.root.name}"
-        self.note = ""
-        self.warnings: list[str] = []
-        self.stride = int(stride)
         left, right = CameraFiles(mav0 / "cam0"), CameraFiles(mav0 / "cam1")
         if left.image_size_px != right.image_size_px:
             raise DatasetError(
@@ -233,7 +233,6 @@ class EurocStereo:
 
         # Ground truth at the image times, in the rectified camera 0.
         times_s = left.stamps_ns[frames] * 1e-9
-        self._ground_truth = None
         gt_path = mav0 / "state_groundtruth_estimate0" / "data.csv"
         if gt_path.is_file():
             gt_s, world_from_body = read_ground_truth(gt_path)
@@ -247,16 +246,9 @@ class EurocStereo:
         self.timestamps_s = times_s
         check_increasing(self.timestamps_s, where)
         self._right_rows = np.array([partner[int(f)] for f in frames], dtype=np.int64)
-        if self.warnings:
-            self.note = "; ".join(self.warnings)
+        self._finish_note()
 
-    def __len__(self) -> int:
-        return len(self.frame_indices)
-
-    def __getitem__(self, i: int) -> StereoFrame:
-        n = len(self.frame_indices)
-        if not -n <= i < n:
-            raise IndexError(f"frame {i} out of range for a dataset of {n} frames")
+    def _frame(self, i: int) -> StereoFrame:
         frame = int(self.frame_indices[i])
         left_path = self._left.image_path(frame)
         right_path = self._right.image_path(int(self._right_rows[i]))
@@ -269,13 +261,6 @@ class EurocStereo:
                 )
         left, right = self.rectifier(left, right)
         return StereoFrame(frame, float(self.timestamps_s[i]), left, right)
-
-    def __iter__(self) -> Iterator[StereoFrame]:
-        for i in range(len(self)):
-            yield self[i]
-
-    def ground_truth(self) -> np.ndarray | None:
-        return None if self._ground_truth is None else self._ground_truth.copy()
 
     @staticmethod
     def detect(path: Path) -> bool:

@@ -18,12 +18,11 @@ another count, an unreadable TUM line.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
 
-from hippo_nav.datasets.base import StereoFrame
+from hippo_nav.datasets.base import StereoFrame, StereoLoader
 from hippo_nav.datasets.common import (
     IMAGE_SUFFIXES,
     FrameSelection,
@@ -72,9 +71,12 @@ def read_times_file(path: Path, count: int) -> np.ndarray:
     return np.array(stamps)
 
 
-class StereoFolder:
+class StereoFolder(StereoLoader):
     """A folder of rectified stereo pairs as a `StereoDataset` (layout and semantics: module doc)."""
 
+    KIND = "folder"
+    TITLE = "stereo folders"
+    LAYOUT = "for a stereo folder one with left/, right/ and calibration.yaml"
     OPTIONS = ("start", "stop", "stride", "frame_rate_hz", "trim_to_ground_truth")
 
     def __init__(
@@ -87,13 +89,11 @@ class StereoFolder:
         frame_rate_hz: float = 10.0,
         trim_to_ground_truth: bool = True,
     ) -> None:
+        super().__init__(stride)
         self.root = Path(root) / sequence if sequence else Path(root)
         if not self.root.is_dir():
             raise DatasetError(f"{self.root}: folder not found")
         self.name = self.root.name
-        self.note = ""
-        self.stride = int(stride)
-        self.warnings: list[str] = []
         self._left = list_images(self.root / "left")
         self._right = list_images(self.root / "right")
         if len(self._left) != len(self._right):
@@ -132,7 +132,6 @@ class StereoFolder:
         frames = selection.frames
         times_s = all_times_s[frames]
 
-        self._ground_truth = None
         gt_path = self.root / GROUND_TRUTH_FILE
         if gt_path.is_file():
             gt_s, gt_poses = read_tum(gt_path)
@@ -144,17 +143,9 @@ class StereoFolder:
             frames, times_s, self._ground_truth = frames[keep], times_s[keep], gt
         self.frame_indices = frames
         self.timestamps_s = times_s
-        self.missing_frames: list[int] = []
-        if self.warnings:
-            self.note = "; ".join(self.warnings)
+        self._finish_note()
 
-    def __len__(self) -> int:
-        return len(self.frame_indices)
-
-    def __getitem__(self, i: int) -> StereoFrame:
-        n = len(self.frame_indices)
-        if not -n <= i < n:
-            raise IndexError(f"frame {i} out of range for a dataset of {n} frames")
+    def _frame(self, i: int) -> StereoFrame:
         frame = int(self.frame_indices[i])
         left_path, right_path = self._left[frame], self._right[frame]
         left, right = read_image(left_path), read_image(right_path)
@@ -165,13 +156,6 @@ class StereoFolder:
                     f"{self.calibration.image_size_px}; all images must have one size"
                 )
         return StereoFrame(frame, float(self.timestamps_s[i]), left, right)
-
-    def __iter__(self) -> Iterator[StereoFrame]:
-        for i in range(len(self)):
-            yield self[i]
-
-    def ground_truth(self) -> np.ndarray | None:
-        return None if self._ground_truth is None else self._ground_truth.copy()
 
     @staticmethod
     def detect(path: Path) -> bool:

@@ -24,13 +24,12 @@ frame 0 of the sequence (not at the first yielded frame). Rebase with `inv(gt[0]
 from __future__ import annotations
 
 import os
-from collections.abc import Iterator
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-from hippo_nav.datasets.base import StereoCalibration, StereoFrame
+from hippo_nav.datasets.base import StereoCalibration, StereoFrame, StereoLoader
 from hippo_nav.io.errors import DatasetError, file_error
 from hippo_nav.io.poses import read_kitti_poses
 
@@ -124,8 +123,14 @@ def read_gray(path: Path) -> np.ndarray:
     return image
 
 
-class KittiOdometry:
+class KittiOdometry(StereoLoader):
     """A KITTI odometry sequence as a `StereoDataset` (see the module doc for the layout and semantics)."""
+
+    KIND = "kitti"
+    TITLE = "KITTI odometry roots"
+    LAYOUT = "for KITTI pass the folder that holds sequences/ and poses/"
+    OPTIONS = ("start", "stop", "stride", "available_only")
+    DEFAULT_SEQUENCE = "00"
 
     def __init__(
         self,
@@ -136,10 +141,10 @@ class KittiOdometry:
         stride: int = 1,
         available_only: bool = True,
     ) -> None:
+        super().__init__(stride)
         self.root = Path(root)
         self.sequence = str(sequence)
         self.name = f"kitti_{self.sequence}"
-        self.note = ""
         if not (self.root / "sequences").is_dir():
             raise DatasetError(
                 f"{self.root}: not a KITTI odometry root (no sequences/ folder); "
@@ -151,7 +156,6 @@ class KittiOdometry:
             raise DatasetError(f"{self.sequence_dir}: sequence not found; present: {', '.join(present)}")
         if stride < 1:
             raise DatasetError(f"stride must be >= 1, got {stride}")
-        self.stride = int(stride)
         for camera in ("image_0", "image_1"):
             if not (self.sequence_dir / camera).is_dir():
                 raise DatasetError(
@@ -159,9 +163,6 @@ class KittiOdometry:
                 )
 
         all_times_s = read_times(self.sequence_dir / "times.txt")
-        self.warnings: list[str] = []
-        self.missing_frames: list[int] = []
-        self.frames_without_timestamp = 0
         self.frame_indices = self._select_frames(len(all_times_s), start, stop, stride, available_only)
         self.timestamps_s = all_times_s[self.frame_indices]
 
@@ -169,9 +170,8 @@ class KittiOdometry:
         height, width = first.shape
         self.calibration = read_calibration(self.sequence_dir / "calib.txt", (width, height))
         self._poses_path = self.root / "poses" / f"{self.sequence}.txt"
-        self._ground_truth = self._read_ground_truth(len(all_times_s))
-        if self.warnings:
-            self.note = "; ".join([self.note, *self.warnings] if self.note else self.warnings)
+        self._ground_truth = self._read_ground_truth(len(all_times_s))  # the whole file (every frame)
+        self._finish_note()
 
     def _image_path(self, camera: int, frame: int) -> Path:
         return self.sequence_dir / f"image_{camera}" / f"{frame:06d}.png"
@@ -248,13 +248,7 @@ class KittiOdometry:
             )
         return poses
 
-    def __len__(self) -> int:
-        return len(self.frame_indices)
-
-    def __getitem__(self, i: int) -> StereoFrame:
-        n = len(self.frame_indices)
-        if not -n <= i < n:
-            raise IndexError(f"frame {i} out of range for a dataset of {n} frames")
+    def _frame(self, i: int) -> StereoFrame:
         frame = int(self.frame_indices[i])
         left_path, right_path = self._image_path(0, frame), self._image_path(1, frame)
         left, right = read_gray(left_path), read_gray(right_path)
@@ -269,10 +263,6 @@ class KittiOdometry:
                 f"{self.calibration.image_size_px}"
             )
         return StereoFrame(frame, float(self.timestamps_s[i]), left, right)
-
-    def __iter__(self) -> Iterator[StereoFrame]:
-        for i in range(len(self)):
-            yield self[i]
 
     def ground_truth(self) -> np.ndarray | None:
         if self._ground_truth is None:

@@ -34,14 +34,13 @@ learn the stamps) and keeps the bag open; each frame is then read by its time (`
 
 from __future__ import annotations
 
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 
-from hippo_nav.datasets.base import StereoCalibration, StereoFrame
+from hippo_nav.datasets.base import StereoCalibration, StereoFrame, StereoLoader
 from hippo_nav.datasets.common import (
     FrameSelection,
     check_increasing,
@@ -145,9 +144,12 @@ class _Topic:
         self.stamp_ns: list[int] = []
 
 
-class RosbagStereo:
+class RosbagStereo(StereoLoader):
     """A stereo pair of image topics in a ROS 1/2 bag as a `StereoDataset` (see the module doc)."""
 
+    KIND = "rosbag"
+    TITLE = "ROS bags"
+    LAYOUT = "for a ROS bag the .bag file or ROS 2 bag folder"
     OPTIONS = ("start", "stop", "stride", "topics", "trim_to_ground_truth", *SETTINGS)
 
     def __init__(
@@ -162,6 +164,8 @@ class RosbagStereo:
         trim_to_ground_truth: bool = True,
         **settings: Any,
     ) -> None:
+        super().__init__(stride)
+        self._reader: Any = None
         path = Path(root)
         opened = bag_path(path)
         if opened is None:
@@ -172,10 +176,6 @@ class RosbagStereo:
             raise DatasetError(f"{path}: a bag holds one sequence; drop the sequence ({sequence!r})")
         self.path = opened
         self.name = opened.stem if opened.is_file() else opened.name
-        self.note = ""
-        self.warnings: list[str] = []
-        self.stride = int(stride)
-        self._reader: Any = None
         config = self._settings(topics, settings)
 
         try:
@@ -234,7 +234,6 @@ class RosbagStereo:
         size = (first_left.shape[1], first_left.shape[0])
         self.calibration = self._calibration(config, available, size)
 
-        self._ground_truth = None
         if config.get("ground_truth"):
             gt_path = Path(config["ground_truth"])
             gt_s, gt_poses = read_tum(gt_path)
@@ -246,8 +245,7 @@ class RosbagStereo:
         self.timestamps_s = times_s
         self._right_of = np.array([partner[int(f)] for f in frames], dtype=np.int64)
         self[0]  # decodes (and rectifies) the first pair now: an unsupported encoding fails here
-        if self.warnings:
-            self.note = "; ".join(self.warnings)
+        self._finish_note()
 
     # ----------------------------------------------------------------------------------------------
     @staticmethod
@@ -424,13 +422,7 @@ class RosbagStereo:
         return self.rectifier.calibration
 
     # ----------------------------------------------------------------------------------------------
-    def __len__(self) -> int:
-        return len(self.frame_indices)
-
-    def __getitem__(self, i: int) -> StereoFrame:
-        n = len(self.frame_indices)
-        if not -n <= i < n:
-            raise IndexError(f"frame {i} out of range for a dataset of {n} frames")
+    def _frame(self, i: int) -> StereoFrame:
         frame = int(self.frame_indices[i])
         left = self._image(self._left, frame)
         right = self._image(self._right, int(self._right_of[i]))
@@ -444,13 +436,6 @@ class RosbagStereo:
         if self.rectifier is not None:
             left, right = self.rectifier(left, right)
         return StereoFrame(frame, float(self.timestamps_s[i]), left, right)
-
-    def __iter__(self) -> Iterator[StereoFrame]:
-        for i in range(len(self)):
-            yield self[i]
-
-    def ground_truth(self) -> np.ndarray | None:
-        return None if self._ground_truth is None else self._ground_truth.copy()
 
     def close(self) -> None:
         """Release the bag (frames cannot be read afterwards)."""
