@@ -2,7 +2,7 @@
 
 ```python
 import hippo_nav
-result = hippo_nav.run("runs/demo")            # the `hippo-nav run` command: built-in demo, or kitti=ROOT
+result = hippo_nav.run("runs/demo")            # the `hippo-nav run` command: built-in demo, or dataset=PATH
 ```
 """
 

@@ -1,9 +1,10 @@
 """Command line: `hippo-nav run` (the main job: the SLAM pipeline), `hippo-nav render` (a synthetic stereo
 street along a KITTI ground truth) and `hippo-nav figures` (the paper's theory figures).
 
-Exit codes: 0 done; 2 bad input (one line on stderr saying what to fix; nothing is processed); 130
-interrupted by Ctrl-C, 143 by SIGTERM, 129 by SIGHUP (128 + the signal number; the results of the frames
-processed so far are written)."""
+Exit codes: 0 done; 2 bad input (one line on stderr saying what to fix; nothing is processed) or a frame
+that cannot be read mid-run (the results of the frames before it are written); 130 interrupted by Ctrl-C,
+143 by SIGTERM, 129 by SIGHUP (128 + the signal number; the results of the frames processed so far are
+written)."""
 
 from __future__ import annotations
 
@@ -34,7 +35,32 @@ class _HelpFormatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefa
         return super()._get_help_string(action) or help_text
 
 
+class _DatasetPath(argparse.Action):
+    """`--dataset PATH` (also spelt `--kitti`): remembers which spelling was used, and every use, so that
+    a message can name the flag typed and two paths are refused rather than one silently winning."""
+
+    def __call__(
+        self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any, option: Any = None
+    ) -> None:
+        namespace.dataset = values
+        namespace.dataset_flags = [*getattr(namespace, "dataset_flags", []), str(option)]
+
+
+LOADER_FLAGS = {"--left-topic": "left_topic", "--right-topic": "right_topic", "--topics": "topics"}
+"""Command-line flags of loader options (keywords of `StereoLoader.OPTIONS`)."""
+
+
+def _loaders_taking(option: str) -> list[str]:
+    from hippo_nav.datasets import LOADERS
+
+    return [kind for kind, loader in LOADERS.items() if option in loader.OPTIONS]
+
+
 def build_parser() -> argparse.ArgumentParser:
+    from hippo_nav.datasets import LOADERS
+    from hippo_nav.engine import MODULE_NAMES
+    from hippo_nav.vo.replay import ALIGNMENTS, FORMATS
+
     parser = argparse.ArgumentParser(
         prog="hippo-nav", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
@@ -49,94 +75,107 @@ def build_parser() -> argparse.ArgumentParser:
         "map, metrics.json, the resolved config and figures into --out.",
         formatter_class=_HelpFormatter,
     )
-    run.add_argument(
-        "--kitti",
-        metavar="ROOT",
-        help="KITTI odometry root (holds sequences/ and poses/) (default: none, the built-in synthetic demo loop)",
-    )
-    run.add_argument(
+    run.set_defaults(dataset=None, dataset_flags=[])
+    data = run.add_argument_group("input")
+    layouts = "; ".join(f"{loader.TITLE} ({kind})" for kind, loader in LOADERS.items())
+    data.add_argument(
         "--dataset",
+        "--kitti",
         metavar="PATH",
-        help="any stereo dataset, recognised by its layout: a KITTI root, an EuRoC/ASL sequence (holds mav0/), "
-        "a ROS 1 .bag file or ROS 2 bag folder, or a folder with left/, right/ and calibration.yaml "
-        "(default: none)",
+        action=_DatasetPath,
+        help=f"the stereo dataset, recognised by its layout: {layouts}; --kitti is another name for it "
+        "(default: none, the built-in synthetic demo loop)",
     )
-    run.add_argument(
+    data.add_argument(
         "--dataset-kind",
-        choices=["kitti", "euroc", "rosbag", "folder"],
+        choices=list(LOADERS),
         default=None,
         help="read --dataset as this kind instead of detecting it (default: detected from the layout)",
     )
-    run.add_argument(
-        "--left-topic",
-        metavar="TOPIC",
-        help="ROS bag: left image topic (sensor_msgs/Image) (default: guessed)",
-    )
-    run.add_argument("--right-topic", metavar="TOPIC", help="ROS bag: right image topic (default: guessed)")
-    run.add_argument(
-        "--topics",
-        metavar="YAML",
-        help="ROS bag: YAML with left_topic, right_topic and the calibration (CameraInfo topics, or fx, fy, "
-        "cx, cy, baseline_m); flags win over it (default: none)",
-    )
-    run.add_argument(
+    numbered = ", ".join(f"{kind}: {loader.DEFAULT_SEQUENCE}" for kind, loader in LOADERS.items()
+                         if loader.DEFAULT_SEQUENCE is not None)  # fmt: skip
+    data.add_argument(
         "--sequence",
         default=None,
-        help="KITTI sequence number (with --kitti, or --dataset on a KITTI root; default 00), or a sequence "
-        "folder inside --dataset (EuRoC, stereo folder)",
+        help=f"the sequence inside --dataset: a sequence number ({numbered} when not given) or a sequence "
+        "folder (EuRoC, stereo folder) (default: the whole path)",
     )
-    run.add_argument("--start", type=int, default=None, help="first frame (default: the sequence's first)")
-    run.add_argument("--stop", type=int, default=None, help="frame to stop before (default: run to the end)")
-    run.add_argument("--stride", type=int, default=1, help="use every n-th frame (default: 1)")
-    run.add_argument(
+    data.add_argument("--start", type=int, default=None, help="first frame (default: the sequence's first)")
+    data.add_argument("--stop", type=int, default=None, help="frame to stop before (default: run to the end)")
+    data.add_argument("--stride", type=int, default=1, help="use every n-th frame (default: 1)")
+
+    options = run.add_argument_group("loader options", "keywords of the loaders that take them")
+    option_help = {
+        "--left-topic": ("TOPIC", "left image topic (sensor_msgs/Image) (default: guessed)"),
+        "--right-topic": ("TOPIC", "right image topic (default: guessed)"),
+        "--topics": (
+            "YAML",
+            (
+                "YAML with left_topic, right_topic and the calibration (CameraInfo topics, or fx, fy, cx, "
+                "cy, baseline_m); flags win over it (default: none)"
+            ),
+        ),
+    }
+    for flag, key in LOADER_FLAGS.items():
+        metavar, text = option_help[flag]
+        options.add_argument(flag, metavar=metavar, help=f"{'/'.join(_loaders_taking(key))}: {text}")
+
+    setup = run.add_argument_group("configuration")
+    setup.add_argument(
         "--config",
         metavar="JSON",
         help="pipeline config file (any subset of sections; the rest: defaults) (default: none, all defaults)",
     )
-    run.add_argument(
+    setup.add_argument(
         "--lesion",
         action="append",
         default=[],
-        choices=["ventral", "intermediate", "dorsal"],
+        choices=list(MODULE_NAMES),
         help="switch a grid module off (repeatable; adds to the config's lesions)",
     )
-    run.add_argument(
+    setup.add_argument(
         "--seed", type=int, default=None, help=f"override the config's seed (0 to {MAX_SEED}; default 0)"
     )
-    run.add_argument(
+
+    odometry = run.add_argument_group("odometry")
+    odometry.add_argument(
         "--odometry",
         metavar="FILE",
         help="replay another system's trajectory (KITTI or TUM file) instead of the built-in stereo VO "
         "(default: none, the built-in stereo VO)",
     )
-    run.add_argument(
+    odometry.add_argument(
         "--odometry-format",
-        choices=["kitti", "tum"],
+        choices=list(FORMATS),
         default=None,
         help="format of --odometry (default: guessed, 12 numbers a line = kitti, 8 = tum)",
     )
-    run.add_argument(
+    odometry.add_argument(
         "--odometry-align",
-        choices=["exact", "start", "end"],
+        choices=list(ALIGNMENTS),
         default=None,
         help="how a KITTI --odometry file's lines map to frames: exact (default) one line per frame of the "
         "sequence; start: line 0 is frame 0, extra lines at the end ignored; end: the last line is the "
         "sequence's last frame",
     )
-    run.add_argument("--no-figures", action="store_true", help="skip the figures")
-    run.add_argument(
+
+    output = run.add_argument_group("output")
+    output.add_argument(
         "--out",
         default=None,
-        help="results folder (default: runs/demo for the demo, runs/kitti_NN for a KITTI sequence); "
-        "it must be new or empty unless --overwrite",
+        help="results folder (default: runs/demo for the demo, runs/kitti_NN for a KITTI sequence, else "
+        "runs/<sequence or dataset name>); it must be new or empty unless --overwrite",
     )
-    run.add_argument(
+    output.add_argument(
         "--overwrite",
         action="store_true",
         help="replace the results of an earlier run in --out (only the files a run writes are removed)",
     )
-    run.add_argument("--no-progress", action="store_true", help="no progress bar")
-    run.add_argument(
+    output.add_argument("--no-figures", action="store_true", help="skip the figures")
+    output.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    viewers = run.add_argument_group("viewers")
+    viewers.add_argument(
         "--rerun",
         nargs="?",
         const="",
@@ -146,12 +185,12 @@ def build_parser() -> argparse.ArgumentParser:
         "map growing, stage timings): without FILE, spawn a viewer or connect to a running one; with FILE, "
         "save a recording that `rerun FILE` opens later. Needs pip install 'hippo-nav[viewer]' (default: off)",
     )
-    run.add_argument(
+    viewers.add_argument(
         "--video",
         action="store_true",
         help="write mapping.mp4 into --out: camera, neural panels and the map growing (default: off)",
     )
-    run.add_argument(
+    viewers.add_argument(
         "--video-every",
         type=int,
         default=5,
@@ -166,7 +205,7 @@ def build_parser() -> argparse.ArgumentParser:
         "ROOT/sequences/NN/times.txt into a KITTI root at --out (images, calib.txt, times.txt, poses/NN.txt). "
         "The camera keeps a fixed height above the road, so every pass sees a street the same way. "
         "Resumable: frames already written are kept. Run it afterwards with "
-        "`hippo-nav run --kitti OUT --sequence NN`.",
+        "`hippo-nav run --dataset OUT --sequence NN`.",
         formatter_class=_HelpFormatter,
     )
     render.add_argument("--kitti", metavar="ROOT", required=True, help="KITTI root with poses/NN.txt")
@@ -201,34 +240,26 @@ _SIGNAL_EXIT = {"SIGINT": 130, "SIGHUP": 129, "SIGTERM": 143}
 
 
 def _version() -> str:
-    from hippo_nav import __version__
+    from hippo_nav._core import __version__
 
     return __version__
 
 
 def _run(args: argparse.Namespace) -> int:
-    from hippo_nav import HippoNavError
+    from hippo_nav._core import HippoNavError
     from hippo_nav.pipeline import load_config, run
     from hippo_nav.pipeline.results import bump_rows, format_bump_table
 
-    if args.kitti is None and args.dataset is None and args.sequence is not None:
+    if args.dataset is None and args.sequence is not None:
         raise HippoNavError(
-            f"--sequence {args.sequence} needs --kitti ROOT (the KITTI root that holds it) or --dataset PATH; "
-            "without them the built-in demo runs"
+            f"--sequence {args.sequence} needs --kitti/--dataset PATH (the dataset that holds it); without a "
+            "dataset the built-in demo runs"
         )
-    if args.kitti is not None and not Path(args.kitti).is_dir():
-        raise HippoNavError(f"--kitti {args.kitti}: no such folder (give the KITTI odometry root)")
     if args.seed is not None and not 0 <= args.seed <= MAX_SEED:
         raise HippoNavError(f"--seed {args.seed}: give an integer from 0 to {MAX_SEED}")
     kind, options = _dataset_input(args)
-    sequence = (args.sequence or "00") if kind == "kitti" else args.sequence
     if args.out is None:
-        if args.kitti is None and args.dataset is None:
-            args.out = "runs/demo"
-        elif kind == "kitti":
-            args.out = f"runs/kitti_{sequence}"
-        else:
-            args.out = f"runs/{args.sequence or Path(args.dataset).resolve().stem}"
+        args.out = _default_out(args, kind)
     odometry = _replay(args)
     config = load_config(args.config)
     if args.lesion:
@@ -241,8 +272,8 @@ def _run(args: argparse.Namespace) -> int:
     try:
         result = run(
             args.out,
-            kitti=args.kitti or args.dataset,
-            sequence=sequence,
+            dataset=args.dataset,
+            sequence=args.sequence,
             start=args.start,
             stop=args.stop,
             stride=args.stride,
@@ -250,7 +281,7 @@ def _run(args: argparse.Namespace) -> int:
             progress=not args.no_progress,
             odometry=odometry,
             overwrite=args.overwrite,
-            dataset_kind=kind if args.dataset is not None else None,
+            dataset_kind=args.dataset_kind,
             dataset_options=options,
             observers=observers,
         )
@@ -277,34 +308,55 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _dataset_input(args: argparse.Namespace) -> tuple[str | None, dict[str, Any]]:
-    """The dataset kind of `--kitti`/`--dataset` (None for the demo) and the loader options of the flags."""
-    from hippo_nav import HippoNavError
-    from hippo_nav.datasets import detect_kind
+    """The dataset kind of `--dataset` (None for the demo) and the loader options of the flags, checked
+    against the loaders' contract (`StereoLoader.OPTIONS`)."""
+    from hippo_nav._core import HippoNavError
+    from hippo_nav.datasets import LOADERS, detect_kind
 
-    topics = {"left_topic": args.left_topic, "right_topic": args.right_topic, "topics": args.topics}
-    options = {key: value for key, value in topics.items() if value is not None}
-    flags = ", ".join("--" + key.replace("_", "-") for key in options)
+    given = {flag: getattr(args, key) for flag, key in LOADER_FLAGS.items()}
+    options = {LOADER_FLAGS[flag]: value for flag, value in given.items() if value is not None}
+    flags = ", ".join(flag for flag, value in given.items() if value is not None)
     if args.dataset is None:
-        for given, flag in ((args.dataset_kind, "--dataset-kind"), (options, flags)):
-            if given:
+        for value, flag in ((args.dataset_kind, "--dataset-kind"), (options, flags)):
+            if value:
                 raise HippoNavError(f"{flag} needs --dataset PATH (the dataset to read)")
-        return ("kitti" if args.kitti is not None else None), {}
-    if args.kitti is not None:
-        raise HippoNavError("give --kitti ROOT or --dataset PATH, not both")
+        return None, {}
+    if len(args.dataset_flags) > 1:
+        raise HippoNavError(
+            f"give one dataset path: {' and '.join(args.dataset_flags)} name the same option (--kitti is "
+            "another name for --dataset)"
+        )
     path = Path(args.dataset)
     if not path.exists():
-        raise HippoNavError(f"--dataset {args.dataset}: no such file or folder")
+        raise HippoNavError(f"{args.dataset_flags[0]} {args.dataset}: no such file or folder")
     kind = args.dataset_kind or detect_kind(path)
-    if options and kind not in ("rosbag", None):
-        raise HippoNavError(f"{flags}: only for ROS bags; {args.dataset} is a {kind} dataset")
+    if kind is not None:
+        refused = [key for key in options if key not in LOADERS[kind].OPTIONS]
+        if refused:
+            takers = [k for k in LOADERS if any(k in _loaders_taking(key) for key in refused)]
+            titles = " or ".join(LOADERS[k].TITLE for k in takers)
+            raise HippoNavError(f"{flags}: only for {titles}; {args.dataset} is a {kind} dataset")
     if args.topics is not None and not Path(args.topics).is_file():
         raise HippoNavError(f"--topics {args.topics}: no such file (a YAML with left_topic, right_topic, …)")
     return kind, options
 
 
+def _default_out(args: argparse.Namespace, kind: str | None) -> str:
+    """runs/demo for the demo; runs/<kind>_<sequence> for a loader of numbered sequences (KITTI); else
+    runs/<sequence or the dataset path's name>."""
+    from hippo_nav.datasets import LOADERS
+
+    if kind is None:
+        return "runs/demo" if args.dataset is None else f"runs/{Path(args.dataset).resolve().stem}"
+    numbered = LOADERS[kind].DEFAULT_SEQUENCE
+    if numbered is not None:
+        return f"runs/{kind}_{args.sequence or numbered}"
+    return f"runs/{args.sequence or Path(args.dataset).resolve().stem}"
+
+
 def _observers(args: argparse.Namespace) -> list[Any]:
     """The viewers asked for: `--rerun [FILE]` and `--video` (mapping.mp4 in --out)."""
-    from hippo_nav import HippoNavError
+    from hippo_nav._core import HippoNavError
 
     observers: list[Any] = []
     if args.video_every < 1:
@@ -329,7 +381,7 @@ def _replay(args: argparse.Namespace) -> Callable[[Any], Any] | None:
     """The `--odometry` replay as the callable `run()` aligns with the opened dataset, or None.
 
     The file is read (and every line checked) here, before the dataset is opened or rendered."""
-    from hippo_nav import HippoNavError
+    from hippo_nav._core import HippoNavError
 
     if args.odometry is None:
         for flag in ("odometry_format", "odometry_align"):
@@ -370,7 +422,7 @@ def _render(args: argparse.Namespace) -> int:
         progress=not args.no_progress,
     )
     print(f"rendered sequence {args.sequence} into {root}; run it with: "
-          f"hippo-nav run --kitti {root} --sequence {args.sequence}")  # fmt: skip
+          f"hippo-nav run --dataset {root} --sequence {args.sequence}")  # fmt: skip
     return 0
 
 
@@ -391,7 +443,7 @@ def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     import logging
 
-    from hippo_nav import HippoNavError
+    from hippo_nav._core import HippoNavError
 
     # Per-frame warnings (VO failures, clamped motion) go to stderr, one line each.
     logging.basicConfig(level=logging.WARNING, format="hippo-nav: %(message)s")

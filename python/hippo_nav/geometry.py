@@ -61,6 +61,11 @@ def planar_from_pose(world_from_camera: np.ndarray) -> np.ndarray:
     return np.stack([t[..., 2, 3], -t[..., 0, 3], yaw], axis=-1)
 
 
+def planar_xy(world_from_camera: np.ndarray) -> np.ndarray:
+    """(…, 2) map-frame positions (forward = z, left = −x) of (…, 4, 4) camera poses."""
+    return planar_from_pose(world_from_camera)[..., :2]
+
+
 def yaw_rotation(yaw_rad: np.ndarray | float) -> np.ndarray:
     """(…, 3, 3) rotation of a level camera with heading `yaw_rad` (about −y, left positive)."""
     yaw = np.asarray(yaw_rad, dtype=np.float64)

@@ -7,12 +7,16 @@ writes the fully resolved config, which every run puts into its results folder (
 run can be repeated from its own output.
 
 Sections:
-- `seed`: the one seed of a run (the networks' starting phases and heading code; OpenCV's RNG).
+- `seed`: the one seed of a run: where the networks' bumps start (heading code and grid phases), and
+  OpenCV's RNG. The odometry does not depend on it (OpenCV's RANSAC uses its own fixed seed).
+- `overlap_front_end`: load frames and measure the odometry ahead, on worker threads (same results).
+- `parts`: which implementation fills each plug point (`hippo_nav.pipeline.parts`).
 - `engine`: the spatial-memory network (`hippo_nav.engine.EngineConfig`).
 - `lesions`: "MEC inactivation" of each grid module — the one place lesions are set for a run (the
   engine's `lesioned` list is derived from it).
 - `vo`: the stereo VO (`hippo_nav.vo.VoParams`).
-- `views`: the view cells (`hippo_nav.views.ViewCellConfig`; `field_of_view_rad` defaults to the camera's).
+- `views`: the template view cells (`hippo_nav.view_cells.TemplateViewConfig`; `field_of_view_rad`
+  defaults to the camera's).
 - `view_search`: which stored views a frame is compared with (`ViewSearchConfig`).
 - `injection`: how familiar views pull the network back (docs/spec.md §7, see `InjectionConfig`).
 - `map`: experience-map creation, loop-closure mode and gates, online correction (`hippo_nav.map.MapParams`).
@@ -28,13 +32,22 @@ import json
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    ValidationError,
+    ValidationInfo,
+    field_validator,
+    model_validator,
+)
 
 from hippo_nav._core import HippoNavError
 from hippo_nav.closure import ClosureConfig
 from hippo_nav.engine import EngineConfig
 from hippo_nav.map import MapParams
-from hippo_nav.views import ViewCellConfig
+from hippo_nav.pipeline.parts import REGISTRIES
+from hippo_nav.view_cells import TemplateViewConfig
 from hippo_nav.vo import VoParams
 
 
@@ -87,6 +100,27 @@ class ViewSearchConfig(_Section):
     radius_margin_m: float = Field(20.0, ge=0.0)
     max_radius_m: float = Field(200.0, gt=0.0)
     recent_cells: int = Field(30, ge=0)
+
+
+class PartsConfig(_Section):
+    """Which implementation fills each plug point: a name in the registries of `hippo_nav.pipeline.parts`
+    (docs/architecture.md). Each part takes its parameters from its own section (`vo`, `views`,
+    `closure`)."""
+
+    odometry: str = Field("stereo", description="the odometry (`parts.ODOMETRIES`)")
+    view_cells: str = Field("template", description="the view descriptor (`parts.VIEW_CELLS`)")
+    closure: str = Field(
+        "view_cell_pnp",
+        description="the loop-closure proposer in the map's geometric mode (`parts.CLOSURE_PROPOSERS`)",
+    )
+
+    @field_validator("odometry", "view_cells", "closure")
+    @classmethod
+    def _registered(cls, name: str, info: ValidationInfo) -> str:
+        registry = REGISTRIES[str(info.field_name)]
+        if name not in registry:
+            raise ValueError(f"unknown {name!r}; choose from {', '.join(sorted(registry))}")
+        return name
 
 
 class CorrectionConfig(_Section):
@@ -142,10 +176,11 @@ class PipelineConfig(_Section):
         description="load frames two ahead and run the odometry one frame ahead of the networks and the "
         "map, each on a worker thread (same results; they overlap on two cores)",
     )
+    parts: PartsConfig = Field(default_factory=PartsConfig)
     engine: EngineConfig = Field(default_factory=EngineConfig)
     lesions: LesionConfig = Field(default_factory=LesionConfig)
     vo: VoParams = Field(default_factory=VoParams)
-    views: ViewCellConfig = Field(default_factory=ViewCellConfig)
+    views: TemplateViewConfig = Field(default_factory=TemplateViewConfig)
     view_search: ViewSearchConfig = Field(default_factory=ViewSearchConfig)
     injection: InjectionConfig = Field(default_factory=InjectionConfig)
     map: MapParams = Field(default_factory=MapParams)

@@ -1,24 +1,61 @@
-"""The camera front end of the pipeline: odometry and local view cells, as protocols and from config.
+"""The camera front end: frames loaded and their odometry measured ahead of the per-frame system.
 
-Anything with these methods can stand in for the built-in parts (`Pipeline(..., odometry=, view_cells=)`):
-- `Odometry.process(frame) -> OdometryStep` with `camera_prev_from_camera_cur` (4×4 SE(3): the current
-  camera's pose in the previous camera's frame, identity on the first frame) and `status` ("ok" when the
-  step was measured and trusted, "first" on the first frame);
-- `ViewCellFrontEnd.template_from_image(gray) -> template`, `.observe(template, candidates) -> observation`
-  (`status`, `cell_id` — None when uninformative —, `is_new`, `difference`, `relative_heading_rad`), and
-  `len(view_cells)`, the number of cells.
+The odometry plug point: anything with `process(frame) -> step` stands in for the built-in stereo VO
+(`Pipeline(..., odometry=)`, or a name in `parts.ODOMETRIES`), where the step has
+`camera_prev_from_camera_cur` (4×4 SE(3): the current camera's pose in the previous camera's frame,
+identity on the first frame) and `status` ("ok" when the step was measured and trusted, "first" on the
+first frame; anything else is flagged). Optional, read by `OdometryExtras.of`: `tracked_pixels` (the
+left-image features it tracks, drawn by viewers), `warnings` and `stereo_bias_px` (reported in
+`metrics.json`), `params` (a pydantic model written into `config.json`).
+
+`OdometryGuard` is the odometry's failure policy: an exception or a non-finite step reuses the previous
+step (constant-velocity prior) and flags the frame "failed".
+
+`FrontEnd` loads frames two ahead of the back end and measures their odometry one frame ahead, each on its
+own worker thread (and describes the view ahead when the view descriptor asks for it,
+`describe_on_worker`). The odometry only looks at images, never at the networks or the map, so frame k+1's
+VO (OpenCV releases the interpreter) can run while the networks and the map (Rust, also without the
+interpreter) process frame k, and frame k+2's images are decoded meanwhile (PNG decoding releases it too).
+One loader and one VO worker keep the frames in order, so the results do not depend on the threads, and
+only the loader reads the dataset (a bag reader need not be thread-safe). The VO worker is also the
+`Worker` the system hands slow work to (a new vertex's keyframe). Without the overlap
+(`config.overlap_front_end = false`) everything runs on the calling thread. An error of a later frame (a
+corrupt image) surfaces when the back end asks for that frame, after the frames before it are done, as
+without the overlap.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
-from typing import Any, Protocol
+import logging
+import time
+from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 import numpy as np
 
-from hippo_nav.datasets.base import StereoCalibration, StereoFrame
-from hippo_nav.views import ViewCellConfig, ViewCells, field_of_view_rad
-from hippo_nav.vo import StereoOdometry, VoParams
+from hippo_nav._core import HippoNavError
+from hippo_nav.datasets.base import StereoDataset, StereoFrame
+from hippo_nav.view_cells import ViewDescriptor
+from hippo_nav.workers import INLINE, Worker
+
+if TYPE_CHECKING:
+    from typing_extensions import Self
+
+log = logging.getLogger("hippo_nav.pipeline")
+T = TypeVar("T")
+
+__all__ = [
+    "FrontEnd",
+    "FrontResult",
+    "Odometry",
+    "OdometryExtras",
+    "OdometryGuard",
+    "OdometryStep",
+    "resolved_frontend_params",
+    "tracked_pixels",
+]
 
 
 class OdometryStep(Protocol):
@@ -33,33 +70,6 @@ class Odometry(Protocol):
     def process(self, frame: StereoFrame) -> OdometryStep: ...
 
 
-class ViewObservationLike(Protocol):
-    @property
-    def status(self) -> str: ...
-
-    @property
-    def cell_id(self) -> int | None: ...
-
-    @property
-    def is_new(self) -> bool: ...
-
-    @property
-    def difference(self) -> float: ...
-
-    @property
-    def relative_heading_rad(self) -> float: ...
-
-
-class ViewCellFrontEnd(Protocol):
-    def template_from_image(self, gray: np.ndarray) -> np.ndarray: ...
-
-    def observe(
-        self, template: np.ndarray, candidates: Sequence[int] | None = None
-    ) -> ViewObservationLike: ...
-
-    def __len__(self) -> int: ...
-
-
 def tracked_pixels(odometry: object) -> np.ndarray | None:
     """(n, 2) left-image pixels of the features `odometry` tracks from its last frame, or None when it has
     no `tracked_pixels` (an array, or a method returning one): a replayed or custom odometry."""
@@ -71,20 +81,145 @@ def tracked_pixels(odometry: object) -> np.ndarray | None:
     return pixels.reshape(-1, 2) if pixels.size % 2 == 0 else None
 
 
-def make_odometry(calibration: StereoCalibration, params: VoParams) -> StereoOdometry:
-    """The stereo VO for `calibration` with the config's `vo` section."""
-    return StereoOdometry(calibration, params)
+@dataclass(frozen=True)
+class OdometryExtras:
+    """The optional attributes of an odometry (module doc), with their defaults: the one place they are read."""
+
+    warnings: list[str] = field(default_factory=list)
+    stereo_bias_px: float | None = None
+
+    @classmethod
+    def of(cls, odometry: object) -> OdometryExtras:
+        bias = getattr(odometry, "stereo_bias_px", None)
+        bias_px = None if bias is None or not np.isfinite(bias) else float(bias)
+        return cls(list(getattr(odometry, "warnings", [])), bias_px)
 
 
-def make_view_cells(params: ViewCellConfig, calibration: StereoCalibration | None = None) -> ViewCells:
-    """Local view cells with the config's `views` section.
+class OdometryGuard:
+    """The odometry with its failure policy (module doc): `measure(frame) -> (step, status)`."""
 
-    Unless the section sets `field_of_view_rad`, it is the camera's (from `calibration`), so that template
-    shifts convert to the right relative heading on any camera, not only KITTI's."""
-    if calibration is not None and "field_of_view_rad" not in params.model_fields_set:
-        fov = field_of_view_rad(calibration.fx, calibration.image_size_px[0])
-        params = params.model_copy(update={"field_of_view_rad": fov})
-    return ViewCells(params)
+    def __init__(self, odometry: Odometry) -> None:
+        self.odometry = odometry
+        self._last_step = np.eye(4)
+
+    def measure(self, frame: StereoFrame) -> tuple[np.ndarray, str]:
+        """The odometry's SE(3) step, or the previous step (constant-velocity prior) when it fails."""
+        try:
+            result = self.odometry.process(frame)
+            step = np.asarray(result.camera_prev_from_camera_cur, dtype=np.float64)
+            status = str(getattr(result, "status", "ok"))
+        except (HippoNavError, ArithmeticError) as err:
+            log.warning("frame %s: odometry failed (%s); using the previous step", frame.index, err)
+            return self._last_step.copy(), "failed"
+        if step.shape != (4, 4) or not np.isfinite(step).all():
+            log.warning("frame %s: odometry returned an invalid step; using the previous step", frame.index)
+            return self._last_step.copy(), "failed"
+        self._last_step = step
+        return step, status
+
+
+@dataclass(frozen=True)
+class FrontResult:
+    """A loaded frame and what the front end measured of it, with the time loading and odometry took."""
+
+    frame: StereoFrame
+    step: np.ndarray  # camera_prev_from_camera_cur (after the failure policy)
+    vo_status: str
+    features_px: np.ndarray | None  # the odometry's tracked features in this frame (None: it has none)
+    view_description: Any  # the view descriptor's description, when made ahead (None: the system makes it)
+    load_s: float
+    vo_s: float
+
+
+class FrontEnd:
+    """Loads frames and measures their odometry ahead of the back end (module doc). A context manager:
+    the threads run inside `with`; `get(i)` is frame i's `FrontResult`; `worker` takes the system's slow
+    work."""
+
+    def __init__(
+        self,
+        dataset: StereoDataset,
+        odometry: OdometryGuard,
+        view_cells: ViewDescriptor | None = None,
+        overlap: bool = True,
+    ) -> None:
+        self.dataset = dataset
+        self.odometry = odometry
+        # Views are described here only when the descriptor asks for it (it then runs a frame ahead).
+        self._describe = (
+            view_cells.describe if view_cells is not None and view_cells.describe_on_worker else None
+        )
+        self._overlap = overlap
+        self._pool: ThreadPoolExecutor | None = None
+        self._loader: ThreadPoolExecutor | None = None
+        self._next: tuple[int, Future[FrontResult]] | None = None
+        self._loads: dict[int, Future[tuple[StereoFrame, float]]] = {}
+
+    def __enter__(self) -> Self:
+        if self._overlap:
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hippo-nav-front")
+            self._loader = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hippo-nav-load")
+        return self
+
+    @property
+    def worker(self) -> Worker:
+        """The worker thread (after the frames already asked for) when overlapping, else `INLINE`."""
+        return self if self._pool is not None else INLINE
+
+    def submit(self, work: Callable[..., T], *args: Any) -> Future[T]:
+        """Run `work(*args)` on the worker, after the frames already asked for (overlapping only)."""
+        if self._pool is None:
+            return INLINE.submit(work, *args)
+        return self._pool.submit(work, *args)
+
+    def get(self, i: int) -> FrontResult:
+        """Frame `i`'s front-end result; starts frame i+1's."""
+        if self._pool is None:
+            return self._front(i)
+        if self._next is not None and self._next[0] == i:
+            result = self._next[1].result()
+        else:
+            result = self._start(i).result()
+        self._next = (i + 1, self._start(i + 1)) if i + 1 < len(self.dataset) else None
+        return result
+
+    def __exit__(self, *exc: object) -> None:
+        # Finish what is queued (the next frame's odometry, keyframes being extracted: a few ms each) so
+        # that nothing touches the VO after the run and every vertex gets its keyframe; a frame loaded
+        # ahead and never used is dropped.
+        for pool in (self._loader, self._pool):
+            if pool is not None:
+                pool.shutdown(wait=True)
+
+    # ----------------------------------------------------------------------------------------------
+    def _load(self, i: int) -> tuple[StereoFrame, float]:
+        """Frame `i` and the seconds its loading took."""
+        clock = time.perf_counter()
+        frame = self.dataset[i]
+        return frame, time.perf_counter() - clock
+
+    def _front(self, i: int, loaded: Future[tuple[StereoFrame, float]] | None = None) -> FrontResult:
+        """Load frame `i` (or take it from `loaded`, loaded ahead) and measure its odometry step."""
+        frame, load_s = self._load(i) if loaded is None else loaded.result()
+        clock = time.perf_counter()
+        step, vo_status = self.odometry.measure(frame)
+        vo_s = time.perf_counter() - clock
+        # Read now: with the front end a frame ahead, the odometry moves on before the back end is done.
+        features_px = tracked_pixels(self.odometry.odometry)
+        description = self._describe(frame) if self._describe is not None else None
+        return FrontResult(frame, step, vo_status, features_px, description, load_s, vo_s)
+
+    def _loaded(self, i: int) -> Future[tuple[StereoFrame, float]]:
+        """Frame `i` being loaded (asked for now if it was not yet), and frame i+1 asked for."""
+        assert self._loader is not None
+        for j in (i, i + 1):
+            if j < len(self.dataset) and j not in self._loads:
+                self._loads[j] = self._loader.submit(self._load, j)
+        return self._loads.pop(i)
+
+    def _start(self, i: int) -> Future[FrontResult]:
+        assert self._pool is not None
+        return self._pool.submit(self._front, i, self._loaded(i))
 
 
 def resolved_frontend_params(odometry: object, view_cells: object) -> dict[str, Any]:

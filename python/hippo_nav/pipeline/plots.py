@@ -46,7 +46,7 @@ from matplotlib.colors import Colormap
 from matplotlib.figure import Figure
 
 from hippo_nav.engine.config import MODULE_NAMES, N_MODULES
-from hippo_nav.geometry import planar_from_pose
+from hippo_nav.geometry import planar_xy
 
 DEFAULT_TORUS_PERIOD_M = 100.0
 # The paper colour-codes rates "by the jet colormap from blue (zero) to red (high)"; kept for comparison.
@@ -63,11 +63,6 @@ def _new_figure(width_in: float, height_in: float) -> Figure:
 def _save(figure: Figure, path: Path, dpi: int) -> Path:
     figure.savefig(path, dpi=dpi)
     return path
-
-
-def planar_xy(world_from_camera: np.ndarray) -> np.ndarray:
-    """(n, 2) map-frame positions (forward = z, left = −x) of KITTI camera poses."""
-    return planar_from_pose(world_from_camera)[..., :2]
 
 
 def _axis_span_m(xy: np.ndarray) -> float:

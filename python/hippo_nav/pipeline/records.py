@@ -1,18 +1,26 @@
 """What a run records: one `FrameRecord` per processed frame, and the `RunResult` it ends with.
 
-Frames: everything the pipeline decided for one camera frame, in the units its name says. Planar poses are
+Frames: everything the system decided for one camera frame, in the units its name says. Planar poses are
 `(x_m, y_m, yaw_rad)` in the map frame (`hippo_nav.geometry`); `vo_world_from_camera` is the 3-D
 odometry (the built-in VO or a replayed trajectory) chained from the first processed frame.
 `RunRecord.column(name)` (or the attribute of the same name) gives one field over all frames.
+
+The runner keeps the `RunRecord` (`RunRecorder`: the frames, and the neural data the figures need, read
+from the engine after each frame) and times every stage of a frame (`StageTimer`); the per-frame system
+only reports where one stage ends and the next begins.
 """
 
 from __future__ import annotations
 
+import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from hippo_nav.engine import N_MODULES, SpatialMemory, SpatialReadout
 
 STAGES = ("load", "vo", "views", "engine", "closure", "map", "record")
 """Per-frame stages whose wall time is measured (seconds per frame in `RunRecord.stage_s`)."""
@@ -29,7 +37,7 @@ class FrameRecord:
     motion_flag: str  # "ok", "clamped", "engine_skipped" or "vo:<status>"
     yaw_rate_rad_s: float  # what the engine integrated
     speed_m_s: float
-    view_cell: int  # -1: no informative view
+    view_cell: int  # NO_VIEW_CELL (-1): no informative view
     view_status: str  # "new", "familiar", "uninformative", "none"
     view_difference: float
     injection_strength: float
@@ -67,6 +75,8 @@ class RunRecord:
         return len(self.frames)
 
     def append(self, frame: FrameRecord) -> None:
+        if frame.vertex_created and frame.vertex >= 0:
+            self.vertex_position[frame.vertex] = len(self.frames)
         self.frames.append(frame)
 
     def column(self, name: str) -> list[Any]:
@@ -110,4 +120,81 @@ class RunResult:
             "online": self.online_world_from_camera,
             "corrected": self.corrected_world_from_camera,
             "neural": self.neural_world_from_camera,
+        }
+
+
+class StageTimer:
+    """Wall time per stage of a frame, appended to `stage_s` (a `RunRecord.stage_s`): `lap(stage)` closes
+    the stage that began at the previous lap (or at `restart`). Without `stage_s`, it measures nothing."""
+
+    def __init__(self, stage_s: dict[str, list[float]] | None = None) -> None:
+        self._stage_s = stage_s
+        self._since = time.perf_counter()
+
+    def restart(self) -> None:
+        self._since = time.perf_counter()
+
+    def lap(self, stage: str) -> None:
+        if self._stage_s is None:
+            return
+        now = time.perf_counter()
+        self._stage_s[stage].append(now - self._since)
+        self._since = now
+
+
+class RunRecorder:
+    """Keeps a run's `RunRecord`: each frame's record, a regular sub-grid of every network's units (for the
+    rate maps; every `unit_stride`-th unit per axis) and full network snapshots at `state_frames` (run
+    positions; the last frame's is added by `final_snapshot`)."""
+
+    def __init__(self, state_frames: Sequence[int], unit_stride: int) -> None:
+        self.record = RunRecord()
+        self._state_frames = set(state_frames)
+        self._unit_stride = max(int(unit_stride), 1)
+
+    def add(self, frame: FrameRecord, engine: SpatialMemory, readout: SpatialReadout) -> None:
+        """Record a processed frame, with the engine's state after it."""
+        self.record.append(frame)
+        self._record_units(engine)
+        self._snapshot(len(self.record) - 1, engine, readout=readout)
+
+    def final_snapshot(self, engine: SpatialMemory) -> None:
+        """The network at the last processed frame (figures always show it)."""
+        self._snapshot(len(self.record) - 1, engine, final=True)
+
+    def _record_units(self, engine: SpatialMemory) -> None:
+        s = self._unit_stride
+        acts = self.record.unit_activity
+        for m, grid in enumerate(engine.config.grid):
+            if engine.config.lesioned[m]:
+                continue
+            name = f"grid k={grid.k}"
+            acts.setdefault(name, []).append(
+                np.asarray(engine.grid_layer2(m)[::s, ::s], dtype=np.float32).ravel()
+            )
+        acts.setdefault("place", []).append(
+            np.asarray(engine.place_activity()[::s, ::s], dtype=np.float32).ravel()
+        )
+
+    def _snapshot(
+        self,
+        position: int,
+        engine: SpatialMemory,
+        final: bool = False,
+        readout: SpatialReadout | None = None,
+    ) -> None:
+        record = self.record
+        if not (final or position in self._state_frames) or position in record.snapshots:
+            return
+        sm = engine
+        record.snapshots[position] = {
+            "frame_index": record.frames[position].frame_index,
+            "hd": sm.hd_activity(),
+            "grid": [None if sm.config.lesioned[m] else sm.grid_activity(m) for m in range(N_MODULES)],
+            "layer2": [None if sm.config.lesioned[m] else sm.grid_layer2(m) for m in range(N_MODULES)],
+            "place": sm.place_activity(),
+            "k": [g.k for g in sm.config.grid],
+            "nu_max": [g.nu_max for g in sm.config.grid],
+            "hd_nu_max": sm.config.hd.nu_max,
+            "readout": readout if readout is not None else sm.readout(),
         }

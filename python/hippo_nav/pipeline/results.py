@@ -1,4 +1,4 @@
-"""Metrics of a run (`evaluate`) and its results folder (`write_results`).
+"""Metrics of a run (`evaluate`, from its `RunResult` and `RunFacts`) and its results folder (`write_results`).
 
 Results folder (every file is written even when the run was interrupted, for the frames processed;
 trajectories first, then metrics, then figures, so a failing figure never costs the rest):
@@ -42,19 +42,18 @@ import sys
 import tempfile
 import time
 from collections import Counter
+from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from hippo_nav._core import HippoNavError
 from hippo_nav.io import write_kitti_poses, write_tum
+from hippo_nav.map import ExperienceMap
 from hippo_nav.metrics import KITTI_SEGMENT_LENGTHS_M, ate_rmse, relative_errors_kitti, trajectory_distances_m
 from hippo_nav.pipeline.config import PipelineConfig, resolved_config_dict
 from hippo_nav.pipeline.records import STAGES, RunRecord, RunResult
-
-if TYPE_CHECKING:
-    from hippo_nav.pipeline.pipeline import Pipeline
 
 log = logging.getLogger("hippo_nav.pipeline")
 
@@ -247,13 +246,29 @@ def timing(record: RunRecord) -> dict[str, Any]:
     }
 
 
-def _finite_or_none(value: Any) -> float | None:
-    return float(value) if value is not None and np.isfinite(value) else None
+@dataclass(frozen=True)
+class RunFacts:
+    """What the metrics need to know of a run besides its result: gathered by the runner from the dataset,
+    the config and the system's parts."""
+
+    frames_requested: int
+    note: str  # the dataset's note
+    seed: int
+    lesioned: list[bool]
+    closure_mode: str
+    min_loop_separation_m: float
+    view_cells: int
+    keyframes: int  # places the closure proposer keeps, and their bytes
+    keyframe_bytes: int
+    data_warnings: list[str]  # the dataset's and the odometry's
+    stereo_bias_px: float | None  # the odometry's running disparity residual, if it measures one
+    missing_frames: int
+    frames_without_timestamp: int
 
 
 def evaluate(
-    pipeline: Pipeline, result: RunResult, correction: dict[str, Any], stopped_by: str | None
-) -> dict:
+    result: RunResult, facts: RunFacts, correction: dict[str, Any], stopped_by: str | None
+) -> dict[str, Any]:
     """The run's metrics (sizes, closures, timing, and with ground truth the trajectory errors)."""
     record = result.record
     n = len(record)
@@ -270,22 +285,22 @@ def evaluate(
         )  # fmt: skip
     metrics: dict[str, Any] = {
         "sequence": result.name,
-        "note": getattr(pipeline.dataset, "note", ""),
+        "note": facts.note,
         "frames": n,
-        "frames_requested": len(pipeline.dataset),
+        "frames_requested": facts.frames_requested,
         "interrupted": result.interrupted,
         "stopped_by_error": stopped_by,
-        "seed": pipeline.config.seed,
-        "lesioned": list(pipeline.engine.config.lesioned),
-        "closure_mode": pipeline.config.map.closure.value,
+        "seed": facts.seed,
+        "lesioned": list(facts.lesioned),
+        "closure_mode": facts.closure_mode,
         "distance_vo_m": float(trajectory_distances_m(result.vo_world_from_camera)[-1]),
-        "view_cells": len(pipeline.views),
+        "view_cells": facts.view_cells,
         "familiar_view_frames": int(sum(s == "familiar" for s in record.column("view_status"))),
         "injected_frames": int(sum(s > 0 for s in record.column("injection_strength"))),
         "vertices": len(export["poses"]),
         "links": len(export["links"]),
-        "keyframes": len(pipeline.keyframes),
-        "keyframe_bytes": int(sum(k.nbytes for k in pipeline.keyframes.values())),
+        "keyframes": facts.keyframes,
+        "keyframe_bytes": facts.keyframe_bytes,
         "loop_closures": int(sum(c is not None for c in closures)),
         "loop_closure_frames": [
             record.frames[p].frame_index for p, c in enumerate(closures) if c is not None
@@ -294,11 +309,10 @@ def evaluate(
         "vo_status_counts": dict(sorted(vo_statuses.items())),
         "motion_flags": int(sum(f != "ok" for f in record.column("motion_flag"))),
         "data": {
-            "warnings": list(getattr(pipeline.dataset, "warnings", []))
-            + list(getattr(pipeline.odometry, "warnings", [])),
-            "stereo_bias_px": _finite_or_none(getattr(pipeline.odometry, "stereo_bias_px", None)),
-            "missing_frames": len(getattr(pipeline.dataset, "missing_frames", [])),
-            "frames_without_timestamp": int(getattr(pipeline.dataset, "frames_without_timestamp", 0)),
+            "warnings": list(facts.data_warnings),
+            "stereo_bias_px": facts.stereo_bias_px,
+            "missing_frames": facts.missing_frames,
+            "frames_without_timestamp": facts.frames_without_timestamp,
             "frames_after_skipped_frames": sum("skipped_frames" in f for f in record.column("data_flags")),
             "time_gaps": sum("time_gap" in f for f in record.column("data_flags")),
             "low_texture_frames": low_texture,
@@ -314,7 +328,7 @@ def evaluate(
         metrics["closure_quality"] = _guarded(
             "closure_quality",
             unavailable,
-            lambda: closure_quality(gt, record, pipeline.config.map.min_loop_separation_m),
+            lambda: closure_quality(gt, record, facts.min_loop_separation_m),
         )
     if unavailable:
         metrics["unavailable"] = unavailable
@@ -410,7 +424,7 @@ def write_results(
     out: Path,
     config: PipelineConfig,
     frontend: dict[str, Any] | None = None,
-    experience_map: Any = None,
+    experience_map: ExperienceMap | None = None,
 ) -> None:
     """Write the results folder of a run (module doc); `result.out_dir` is set. `frontend`: the resolved
     front-end parameters for config.json; `experience_map`: the map to save (map.bin, map.g2o)."""

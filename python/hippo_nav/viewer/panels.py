@@ -1,6 +1,7 @@
 """What the viewers show, as arrays: the neural panels as images, the decoded bumps, the map and the tracks.
 
-Both viewers (`rerun.py`, `video.py`) draw from these, so the live view, the video and the figures of a run
+Both viewers (`rerun.py`, `video.py`) draw from these, made from the data of a run's `FrameEvent`s
+(`hippo_nav.pipeline.observers`), so the live view, the video and the figures of a run
 (`hippo_nav.pipeline.plots`) show the same things the same way:
 
 - Neural panels (the paper's neural-representation figure, `plots.neural_state_figure`): the HD-by-velocity
@@ -15,15 +16,17 @@ Both viewers (`rerun.py`, `video.py`) draw from these, so the live view, the vid
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
 
 import cv2
 import numpy as np
 
-from hippo_nav.datasets.base import StereoDataset
-from hippo_nav.engine.config import MODULE_NAMES
-from hippo_nav.pipeline.plots import planar_xy
+from hippo_nav.engine import MODULE_NAMES, SpatialReadout
+from hippo_nav.geometry import planar_xy
+from hippo_nav.pipeline.observers import FrameEvent, NetworkActivity
+from hippo_nav.pipeline.records import FrameRecord
+from hippo_nav.view_cells import NO_VIEW_CELL
 
 TWO_PI = 2.0 * np.pi
 
@@ -68,29 +71,29 @@ class NeuralPanel:
     )  # (n, 2) decoded bump centres (x, y)
 
 
-def neural_panels(engine: Any, readout: Any) -> list[NeuralPanel]:
-    """The HD ring, every grid module's layer-II pattern and the place torus of a `SpatialMemory`, with the
-    bumps of its `SpatialReadout` (the heading on the ring's middle row)."""
-    hd = np.asarray(engine.hd_activity())
+def neural_panels(network: NetworkActivity, readout: SpatialReadout) -> list[NeuralPanel]:
+    """The HD ring, every grid module's layer-II pattern and the place torus (`NetworkActivity`, e.g. a
+    `FrameEvent`'s `network`), with the bumps of the `SpatialReadout` (the heading on the ring's middle
+    row)."""
+    hd = np.asarray(network.hd)
     ring = colorize(hd)
     heading = np.array([[readout.heading_rad, np.pi]])  # θ of the heading; middle of the ν axis
     panels = [
         NeuralPanel("hd_ring", "HD-by-velocity ring", "HD ring", ring, angles_to_pixels(heading, hd.shape))
     ]
-    config = engine.config
-    for m, grid in enumerate(config.grid):
-        region = f" ({MODULE_NAMES[m]})" if len(config.grid) == len(MODULE_NAMES) else ""
-        title = f"grid k={grid.k}{region}: layer II"
-        name, label = f"layer2_k{grid.k}", f"grid k={grid.k} layer II"
-        if config.lesioned[m]:
+    for m, (k, layer2) in enumerate(zip(network.ks, network.layer2)):
+        region = f" ({MODULE_NAMES[m]})" if len(network.ks) == len(MODULE_NAMES) else ""
+        title = f"grid k={k}{region}: layer II"
+        name, label = f"layer2_k{k}", f"grid k={k} layer II"
+        if layer2 is None:
             panels.append(NeuralPanel(name, title, label, None))
             continue
-        pattern = np.asarray(engine.grid_layer2(m))
+        pattern = np.asarray(layer2)
         module = readout.modules[m] if m < len(readout.modules) else None
         bumps = np.array([b.mean_rad for b in module.bumps]) if module is not None and module.bumps else None
         pixels = angles_to_pixels(bumps, pattern.shape) if bumps is not None else np.zeros((0, 2))
         panels.append(NeuralPanel(name, title, label, colorize(pattern), pixels))
-    place = np.asarray(engine.place_activity())
+    place = np.asarray(network.place)
     bump = readout.place if readout.place is not None else readout.fused
     pixels = (
         angles_to_pixels(np.array([bump.mean_rad]), place.shape) if bump is not None else np.zeros((0, 2))
@@ -99,7 +102,7 @@ def neural_panels(engine: Any, readout: Any) -> list[NeuralPanel]:
     return panels
 
 
-def bump_table(readout: Any, frame_index: int) -> str:
+def bump_table(readout: SpatialReadout, frame_index: int) -> str:
     """The paper's bump table (μ, σ of every grid bump, the fused estimate and the place bump, rad) for one
     readout, in the layout `hippo-nav run` prints and `bump_table.csv` holds."""
     from hippo_nav.pipeline.records import RunRecord
@@ -109,7 +112,7 @@ def bump_table(readout: Any, frame_index: int) -> str:
     return format_bump_table(bump_rows(record))
 
 
-def bump_summary(readout: Any) -> list[str]:
+def bump_summary(readout: SpatialReadout) -> list[str]:
     """A few lines for a small panel: per grid module the number of bumps and their mean width, then the
     fused estimate and the place bump (μ and σ per axis, rad)."""
     lines = []
@@ -134,19 +137,9 @@ def bump_summary(readout: Any) -> list[str]:
 # The camera front end
 
 
-def view_cell_rows(views: Any, image_height_px: int) -> tuple[int, int] | None:
-    """The image rows (top, bottom) the view cells' template is cut from, or None for a front end that does
-    not say (the built-in `ViewCells` crop `config.crop_rows_frac` of the rows)."""
-    rows = getattr(getattr(views, "config", None), "crop_rows_frac", None)
-    if rows is None:
-        return None
-    top, bottom = (round(float(f) * image_height_px) for f in rows)
-    return top, bottom
-
-
-def view_cell_label(record: Any) -> str:
+def view_cell_label(record: FrameRecord) -> str:
     """What the view cells said this frame, e.g. "view cell 12 familiar, injecting 0.62"."""
-    if record.view_cell < 0:
+    if record.view_cell == NO_VIEW_CELL:
         return f"no view cell ({record.view_status})"
     label = f"view cell {record.view_cell} {record.view_status}"
     if record.injection_strength > 0:
@@ -158,18 +151,6 @@ def view_cell_label(record: Any) -> str:
 # The map and the tracks
 
 
-def ground_truth_xy(dataset: StereoDataset) -> np.ndarray | None:
-    """(n, 2) map-frame positions of the dataset's ground truth, rebased on its first frame like the
-    results' `ground_truth`; None without one."""
-    gt = dataset.ground_truth()
-    if gt is None:
-        return None
-    gt = np.asarray(gt, dtype=np.float64)
-    if gt.ndim != 3 or len(gt) == 0:
-        return None
-    return planar_xy(np.linalg.inv(gt[0]) @ gt)
-
-
 @dataclass(frozen=True)
 class MapGraph:
     """The experience map as drawn: vertex positions (N, 2), links (L, 2) as vertex indices, loop flags."""
@@ -179,12 +160,7 @@ class MapGraph:
     is_loop: np.ndarray
 
     @classmethod
-    def of(cls, experience_map: Any) -> MapGraph:
-        export = experience_map.export()
-        return cls.from_export(export)
-
-    @classmethod
-    def from_export(cls, export: dict[str, Any]) -> MapGraph:
+    def from_export(cls, export: Mapping[str, np.ndarray]) -> MapGraph:
         poses = np.asarray(export["poses"], dtype=np.float64).reshape(-1, 3)
         links = np.asarray(export["links"], dtype=np.int64).reshape(-1, 2)
         is_loop = np.asarray(export["link_is_loop"], dtype=bool).reshape(-1)
@@ -210,11 +186,12 @@ class Tracks:
         self._gt_all: np.ndarray | None = None
         self._n = 0
 
-    def update(self, pipeline: Any, record: Any) -> None:
+    def update(self, event: FrameEvent) -> None:
+        record = event.record
         if self._n == 0:
-            self._gt_all = ground_truth_xy(pipeline.dataset)
-        if self._n >= len(self._vo):  # sized for the run; grows only if the dataset's length was unknown
-            size = max(len(pipeline.dataset), 2 * len(self._vo), self._n + 1)
+            self._gt_all = event.run.ground_truth_xy
+        if self._n >= len(self._vo):  # sized for the run; grows only if the run's length was unknown
+            size = max(event.run.frames, 2 * len(self._vo), self._n + 1)
             self._vo = np.resize(self._vo, (size, 2))
             self._online = np.resize(self._online, (size, 2))
         self._vo[self._n] = planar_xy(np.asarray(record.vo_world_from_camera, dtype=np.float64))

@@ -31,21 +31,23 @@ whose vertices a loop closure's correction moved.
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 
-from hippo_nav.pipeline.records import STAGES
+from hippo_nav.engine import SpatialReadout
+from hippo_nav.geometry import planar_xy
+from hippo_nav.pipeline.observers import FrameEvent
+from hippo_nav.pipeline.records import STAGES, FrameRecord, RunResult
 from hippo_nav.viewer.panels import (
     MapGraph,
     Tracks,
     bump_table,
     neural_panels,
     view_cell_label,
-    view_cell_rows,
 )
 
 INSTALL_HINT = "pip install 'hippo-nav[viewer]'"
@@ -68,7 +70,7 @@ TRACK_STYLE = {
 
 def import_rerun() -> Any:
     """The `rerun` module, or a `HippoNavError` saying how to install it (the CLI prints it and exits 2)."""
-    from hippo_nav import HippoNavError
+    from hippo_nav._core import HippoNavError
 
     try:
         import rerun
@@ -137,7 +139,7 @@ def _log_style(rr: Any, rec: Any, entity: str, kind: str, fields: dict[str, Any]
 
 def _writable_file(path: Path) -> Path:
     """`path`, once it is clear that a file can be written there (its folder need not exist yet)."""
-    from hippo_nav import HippoNavError
+    from hippo_nav._core import HippoNavError
 
     if path.is_dir():
         raise HippoNavError(f"rerun recording {path} is a folder; give a file path ending in .rrd")
@@ -212,40 +214,42 @@ class RerunObserver:
         }
         self._loops_logged = np.zeros((0, 2, 2))
         self._last_place: tuple[np.ndarray, float] | None = None  # place code (m) and time of the last frame
-        self._pipeline: Any = None
+        self._previous: FrameRecord | None = None  # the record of the frame logged before
 
     # ----------------------------------------------------------------------------------------------
-    def on_frame(self, pipeline: Any, frame: Any, record: Any, readout: Any) -> None:
+    def on_frame(self, event: FrameEvent) -> None:
         rec, rr = self.rec, self.rr
+        record = event.record
         if self.frames_logged == 0:
-            self._start(pipeline)
+            self._start(event)
         self._at(record)
-        self._log_camera(pipeline, frame, record)
-        for panel in neural_panels(pipeline.engine, readout):
+        self._log_camera(event)
+        for panel in neural_panels(event.network, event.readout):
             if panel.image is None:
                 continue
             rec.log(f"neural/{panel.name}", rr.Image(panel.image))
             rec.log(f"neural/{panel.name}/bumps", rr.Points2D(panel.bumps_px))
-        self._log_readout(record, readout)
-        self._log_map(pipeline, record)
+        self._log_readout(record, event.readout)
+        self._log_map(event)
         if record.loop_closure is not None:
             rec.log("events", rr.TextLog(f"loop closure {record.loop_closure[0]} → {record.loop_closure[1]}"))
-        self._log_timing(pipeline, self.frames_logged - 1)  # last: it moves the time cursor back
+        if self._previous is not None and event.previous_stage_s is not None:
+            self._log_timing(self._previous, event.previous_stage_s)  # last: it moves the time cursor back
+        self._previous = record
         self.frames_logged += 1
 
-    def on_finish(self, result: Any) -> None:
+    def on_finish(self, result: RunResult) -> None:
         """The corrected map and track after the final correction, at the last frame; then flush."""
         rec, rr = self.rec, self.rr
         if self.frames_logged == 0:
             return
-        self._at(self._pipeline.record.frames[-1])
+        last = result.record.frames[-1]
+        self._at(last)
         graph = MapGraph.from_export(result.map_export)
         self._vertices.update(rec, graph.vertices_xy)
         self._links.update(rec, graph.segments()[~graph.is_loop])
         self._log_loops(graph)
         corrected = result.corrected_world_from_camera
-        from hippo_nav.pipeline.plots import planar_xy
-
         rec.log(
             "map/tracks/corrected",
             rr.LineStrips2D([_screen(planar_xy(corrected))]),
@@ -254,10 +258,12 @@ class RerunObserver:
         note = f", corrected ATE {ate:.2f} m" if isinstance(ate, float) else ""
         state = "interrupted" if result.interrupted else "finished"
         rec.log("events", rr.TextLog(f"run {state} after {len(result.record)} frames{note}"))
-        self._log_timing(self._pipeline, self.frames_logged - 1)
+        stage_s = result.record.stage_s
+        if all(len(stage_s.get(stage, [])) == len(result.record) for stage in STAGES):
+            self._log_timing(last, {stage: stage_s[stage][-1] for stage in STAGES})
         self.rec.flush()
 
-    def _at(self, record: Any) -> None:
+    def _at(self, record: FrameRecord) -> None:
         """Log what follows at this frame, on both timelines."""
         self.rec.set_time("frame", sequence=int(record.frame_index))
         self.rec.set_time("time", duration=float(record.timestamp_s))
@@ -268,14 +274,13 @@ class RerunObserver:
         self.rec.disconnect()
 
     # ----------------------------------------------------------------------------------------------
-    def _start(self, pipeline: Any) -> None:
+    def _start(self, event: FrameEvent) -> None:
         """Static things and the layout, once the networks' shapes are known."""
         rr = self.rr
         if self._save_to is not None:
             self._save_to.parent.mkdir(parents=True, exist_ok=True)
             self.rec.save(self._save_to)
-        names = [p.name for p in neural_panels(pipeline.engine, pipeline.engine.readout())]
-        self._pipeline = pipeline
+        names = [p.name for p in neural_panels(event.network, event.readout)]
         series = {
             "readout/yaw_rate_deg_s": ["odometry", "HD ring"],
             "readout/speed_m_s": ["odometry", "networks (place code)"],
@@ -304,9 +309,10 @@ class RerunObserver:
                 "rerun layout not sent (%s); using rerun's default", err
             )
 
-    def _log_camera(self, pipeline: Any, frame: Any, record: Any) -> None:
+    def _log_camera(self, event: FrameEvent) -> None:
         rec, rr = self.rec, self.rr
-        left = np.asarray(frame.left)
+        record = event.record
+        left = np.asarray(event.frame.left)
         if left.size > JPEG_ABOVE_PX:
             ok, jpeg = cv2.imencode(".jpg", left, [cv2.IMWRITE_JPEG_QUALITY, 85])
             image = (
@@ -315,10 +321,10 @@ class RerunObserver:
         else:
             image = rr.Image(left)
         rec.log("camera/left", image)
-        pixels = pipeline.frame_features_px
+        pixels = event.features_px
         if pixels is not None:
             rec.log("camera/left/features", rr.Points2D(pixels + 0.5))
-        rows = view_cell_rows(pipeline.views, left.shape[0])
+        rows = event.view_rows
         if rows is not None:
             top, bottom = rows
             colour = (255, 200, 0) if record.view_status == "familiar" else (0, 200, 255)
@@ -330,7 +336,7 @@ class RerunObserver:
                 ),
             )  # fmt: skip
 
-    def _log_readout(self, record: Any, readout: Any) -> None:
+    def _log_readout(self, record: FrameRecord, readout: SpatialReadout) -> None:
         """Heading; yaw rate and speed as two series each (the odometry's, which the networks integrate, and
         the networks' own: the HD ring's decoded yaw rate, the place code's displacement per second)."""
         rec, rr = self.rec, self.rr
@@ -348,18 +354,19 @@ class RerunObserver:
         table = bump_table(readout, record.frame_index)
         rec.log("readout/bump_table", rr.TextDocument(f"```\n{table}\n```", media_type="text/markdown"))
 
-    def _log_map(self, pipeline: Any, record: Any) -> None:
+    def _log_map(self, event: FrameEvent) -> None:
         rec, rr = self.rec, self.rr
-        self._tracks.update(pipeline, record)
+        record = event.record
+        self._tracks.update(event)
         # The graph's links change only when the agent moves to another vertex or closes a loop.
-        size = len(pipeline.map)
+        size = event.vertices
         if size != self._map_size or record.vertex != self._vertex or record.loop_closure is not None:
-            self._graph = MapGraph.of(pipeline.map)
+            self._graph = MapGraph.from_export(event.map_export)
             self._map_size, self._vertex = size, record.vertex
         graph = self._graph
         if graph is not None and len(graph.vertices_xy):
             # Vertex positions move only when a correction ran; reading them is cheap, logging is not.
-            xy = np.asarray(pipeline.map.poses(), dtype=np.float64).reshape(-1, 3)[:, :2]
+            xy = event.vertex_poses[:, :2]
             self._vertices.update(rec, xy)
             segments = graph.segments(xy)
             self._links.update(rec, segments[~graph.is_loop])
@@ -384,15 +391,12 @@ class RerunObserver:
         self.rec.log("map/loop_links", self.rr.LineStrips2D([_screen(s) for s in loops]))
         self._loops_logged = loops
 
-    def _log_timing(self, pipeline: Any, position: int) -> None:
-        """Every stage's wall time (ms) of the frame at run `position`, as one multi-series entity. The
-        `record` stage (which includes the observers) ends after `on_frame`, so a frame's timings are logged
-        by the next frame (the last one's by `on_finish`), at the frame they belong to."""
-        stage_s, frames = pipeline.record.stage_s, pipeline.record.frames
-        if position < 0 or any(len(stage_s.get(stage, [])) <= position for stage in STAGES):
-            return
-        self._at(frames[position])
-        self.rec.log("timing/stage_ms", self.rr.Scalars([1e3 * stage_s[stage][position] for stage in STAGES]))
+    def _log_timing(self, record: FrameRecord, stage_s: Mapping[str, float]) -> None:
+        """Every stage's wall time (ms) of the frame of `record`, as one multi-series entity. The `record`
+        stage (which includes the observers) ends after `on_frame`, so a frame's timings are logged by the
+        next frame (the last one's by `on_finish`), at the frame they belong to."""
+        self._at(record)
+        self.rec.log("timing/stage_ms", self.rr.Scalars([1e3 * stage_s[stage] for stage in STAGES]))
 
 
 def _blueprint(rr: Any, panels: Sequence[str]) -> Any:

@@ -21,11 +21,13 @@ from __future__ import annotations
 
 import tempfile
 from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
 
+from hippo_nav.geometry import planar_xy
+from hippo_nav.pipeline.observers import FrameEvent
+from hippo_nav.pipeline.records import RunResult
 from hippo_nav.viewer.panels import (
     MapGraph,
     NeuralPanel,
@@ -33,7 +35,6 @@ from hippo_nav.viewer.panels import (
     bump_summary,
     neural_panels,
     view_cell_label,
-    view_cell_rows,
 )
 
 CANVAS_SIZE_PX = (1280, 720)  # width, height
@@ -51,7 +52,7 @@ class VideoObserver:
     frames per video frame; `fps`: video frames per second."""
 
     def __init__(self, path: str | Path, every: int = 5, fps: float = 10.0) -> None:
-        from hippo_nav import HippoNavError
+        from hippo_nav._core import HippoNavError
 
         if int(every) < 1:
             raise HippoNavError(f"video: every={every}; give a positive number of frames per video frame")
@@ -61,28 +62,28 @@ class VideoObserver:
         self.every = int(every)
         self.fps = float(fps)
         self.frames_written = 0
-        self._writer: Any = None
+        self._writer: cv2.VideoWriter | None = None
         self._tracks = Tracks()
         self._position = 0
-        self._last: tuple[Any, Any, Any, Any] | None = None
+        self._last: FrameEvent | None = None
         self._bounds: np.ndarray | None = (
             None  # (2, 2) map extent drawn so far: [[x_min, y_min], [x_max, y_max]]
         )
         _check_codec()
 
     # ----------------------------------------------------------------------------------------------
-    def on_frame(self, pipeline: Any, frame: Any, record: Any, readout: Any) -> None:
-        self._tracks.update(pipeline, record)
-        self._last = (pipeline, frame, record, readout)
+    def on_frame(self, event: FrameEvent) -> None:
+        self._tracks.update(event)
+        self._last = event
         if self._position % self.every == 0:
-            self._write(self.render(pipeline, frame, record, readout))
+            self._write(self.render(event))
         self._position += 1
 
-    def on_finish(self, result: Any) -> None:
+    def on_finish(self, result: RunResult) -> None:
         """A last frame after the final correction, then the file is closed."""
         try:
             if self._last is not None:
-                self._write(self.render(*self._last, result=result))
+                self._write(self.render(self._last, result=result))
         finally:
             self.close()
 
@@ -92,24 +93,25 @@ class VideoObserver:
             self._writer = None
 
     # ----------------------------------------------------------------------------------------------
-    def render(self, pipeline: Any, frame: Any, record: Any, readout: Any, result: Any = None) -> np.ndarray:
+    def render(self, event: FrameEvent, result: RunResult | None = None) -> np.ndarray:
         """The (720, 1280, 3) BGR canvas of one frame (`result`: the final one, with the corrected map)."""
+        record = event.record
         width, height = CANVAS_SIZE_PX
         canvas = np.full((height, width, 3), 255, np.uint8)
-        title = f"hippo_nav: {getattr(pipeline, 'dataset_name', 'run')}   frame {record.frame_index}"
+        title = f"hippo_nav: {event.run.name}   frame {record.frame_index}"
         title += f"   t = {record.timestamp_s:.1f} s" + (
             "   (final correction)" if result is not None else ""
         )
         _text(canvas, title, (10, 20), scale=0.55)
-        _draw_camera(canvas, pipeline, frame, record, (10, 30, 620, 200))
-        y = _draw_neural(canvas, neural_panels(pipeline.engine, readout), (10, 240, 620))
-        _draw_readout(canvas, pipeline, record, readout, (10, y + 12))
-        self._draw_map(canvas, pipeline, record, result, (650, 30, 620, 680))
+        _draw_camera(canvas, event, (10, 30, 620, 200))
+        y = _draw_neural(canvas, neural_panels(event.network, event.readout), (10, 240, 620))
+        _draw_readout(canvas, event, (10, y + 12))
+        self._draw_map(canvas, event, result, (650, 30, 620, 680))
         return canvas
 
     def _write(self, canvas: np.ndarray) -> None:
         if self._writer is None:
-            from hippo_nav import HippoNavError
+            from hippo_nav._core import HippoNavError
 
             self.path.parent.mkdir(parents=True, exist_ok=True)
             writer = cv2.VideoWriter(
@@ -121,20 +123,16 @@ class VideoObserver:
         self._writer.write(canvas)
         self.frames_written += 1
 
-    def _draw_map(self, canvas: np.ndarray, pipeline: Any, record: Any, result: Any, box: tuple) -> None:
+    def _draw_map(self, canvas: np.ndarray, event: FrameEvent, result: RunResult | None, box: tuple) -> None:
         x0, y0, w, h = box
-        if result is not None:
-            graph = MapGraph.from_export(result.map_export)
-        else:
-            graph = MapGraph.of(pipeline.map)
+        record = event.record
+        graph = MapGraph.from_export(result.map_export if result is not None else event.map_export)
         tracks = self._tracks
         layers = [tracks.vo_xy, tracks.online_xy, graph.vertices_xy]
         if tracks.ground_truth_all_xy is not None:
             layers.append(tracks.ground_truth_all_xy)
         corrected = None
         if result is not None:
-            from hippo_nav.pipeline.plots import planar_xy
-
             corrected = planar_xy(result.corrected_world_from_camera)
             layers.append(corrected)
         points = np.concatenate([p for p in layers if len(p)])
@@ -238,18 +236,19 @@ def _scale_bar_m(metres: float) -> float:
     return float(max(m for m in (1.0, 2.0, 5.0) if m * power <= metres) * power)
 
 
-def _draw_camera(canvas: np.ndarray, pipeline: Any, frame: Any, record: Any, box: tuple) -> None:
+def _draw_camera(canvas: np.ndarray, event: FrameEvent, box: tuple) -> None:
     x0, y0, w, h = box
-    left = np.asarray(frame.left)
+    record = event.record
+    left = np.asarray(event.frame.left)
     scale = min(w / left.shape[1], h / left.shape[0])
     size = (round(left.shape[1] * scale), round(left.shape[0] * scale))
     image = cv2.resize(left, size, interpolation=cv2.INTER_AREA if scale < 1 else cv2.INTER_LINEAR)
     canvas[y0 : y0 + size[1], x0 : x0 + size[0]] = image[..., None] if image.ndim == 2 else image
-    pixels = pipeline.frame_features_px
+    pixels = event.features_px
     if pixels is not None:
         at = (pixels + 0.5) * scale - 0.5 + [x0, y0]
         _squares(canvas, at, FEATURE, 1, (x0, y0, size[0], size[1]))
-    rows = view_cell_rows(pipeline.views, left.shape[0])
+    rows = event.view_rows
     label = view_cell_label(record)
     if rows is not None:
         top, bottom = (y0 + round(r * scale) for r in rows)
@@ -302,14 +301,15 @@ def _draw_neural(canvas: np.ndarray, panels: list[NeuralPanel], box: tuple) -> i
     return y + side
 
 
-def _draw_readout(canvas: np.ndarray, pipeline: Any, record: Any, readout: Any, at: tuple[int, int]) -> None:
+def _draw_readout(canvas: np.ndarray, event: FrameEvent, at: tuple[int, int]) -> None:
     x, y = at
+    record, readout = event.record, event.readout
     heading_deg = np.degrees(np.remainder(readout.heading_rad, 2 * np.pi))
     yaw_odometry, yaw_networks = np.degrees(record.yaw_rate_rad_s), np.degrees(readout.yaw_rate_rad_s)
     lines = [
         f"heading (HD ring) {heading_deg:6.1f} deg   yaw rate {yaw_odometry:6.1f} deg/s (odometry), "
         + f"{yaw_networks:6.1f} (HD ring)",
-        f"speed {record.speed_m_s:5.2f} m/s (odometry)   view cells {len(pipeline.views)}   vertex {record.vertex}"
+        f"speed {record.speed_m_s:5.2f} m/s (odometry)   view cells {event.view_cells}   vertex {record.vertex}"
         + (f"   closure: {record.closure_note}" if record.closure_note else ""),
     ]
     lines += bump_summary(readout)
@@ -319,7 +319,7 @@ def _draw_readout(canvas: np.ndarray, pipeline: Any, record: Any, readout: Any, 
 
 def _check_codec() -> None:
     """Refuse before the run when this OpenCV cannot write MPEG-4 (rather than after the first frame)."""
-    from hippo_nav import HippoNavError
+    from hippo_nav._core import HippoNavError
 
     with tempfile.TemporaryDirectory(prefix="hippo_nav_video_") as folder:
         probe = Path(folder) / "probe.mp4"

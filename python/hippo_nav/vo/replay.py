@@ -8,12 +8,12 @@ from hippo_nav.pipeline import run
 from hippo_nav.vo.replay import ReplayOdometry, replay_odometry
 
 replay = replay_odometry("kitti00_ORBSLAM.txt", align="start")   # reads and checks the file
-result = run("runs/orb00", kitti=ROOT, sequence="00", odometry=replay)  # aligned with the opened dataset
+result = run("runs/orb00", dataset=ROOT, sequence="00", odometry=replay)  # aligned with the opened dataset
 vo = ReplayOdometry("poses.txt", dataset)            # directly, for an opened StereoDataset
 step = vo.process(dataset[0])                       # a VoStep, like StereoOdometry.process
 ```
 
-The command line does the same: `hippo-nav run --kitti ROOT --sequence 00 --odometry FILE
+The command line does the same: `hippo-nav run --dataset ROOT --sequence 00 --odometry FILE
 [--odometry-format kitti|tum] [--odometry-align exact|start|end]`.
 
 File formats (read by `hippo_nav.io`, which checks every line and names `file:line` on an error):

@@ -1,0 +1,356 @@
+"""The runner: `Pipeline(dataset, config).run(out_dir)` drives the per-frame system over a dataset.
+
+It is the package's main job (the `hippo-nav run` command) and everything around the algorithm: the front
+end's threads (`frontend.FrontEnd`: frames loaded and their odometry measured ahead), Ctrl-C and
+termination signals, the progress bar, the run's record (`records.RunRecorder`, with per-stage timings),
+the observers (`observers.FrameEvent`), and at the end the final correction, the trajectories
+(`assemble.assemble_result`), the metrics (`results.evaluate`) and the results folder
+(`results.write_results`). The algorithm itself is `system.SlamSystem`.
+
+Ctrl-C (KeyboardInterrupt), SIGTERM and SIGHUP stop after the current frame; everything for the frames
+processed so far is still corrected and written.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import signal
+import threading
+import time
+from collections.abc import Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hippo_nav._core import HippoNavError
+from hippo_nav.closure import ClosureProposer
+from hippo_nav.datasets.base import DatasetExtras, StereoDataset
+from hippo_nav.io import DatasetError
+from hippo_nav.pipeline import parts
+from hippo_nav.pipeline.assemble import assemble_result
+from hippo_nav.pipeline.config import PipelineConfig
+from hippo_nav.pipeline.frontend import (
+    FrontEnd,
+    FrontResult,
+    Odometry,
+    OdometryExtras,
+    OdometryGuard,
+    resolved_frontend_params,
+)
+from hippo_nav.pipeline.observers import FrameEvent, Observer, RunInfo
+from hippo_nav.pipeline.records import RunRecord, RunRecorder, RunResult, StageTimer
+from hippo_nav.pipeline.results import RunFacts
+from hippo_nav.pipeline.system import SlamSystem
+from hippo_nav.view_cells import ViewDescriptor
+
+log = logging.getLogger("hippo_nav.pipeline")
+
+__all__ = ["Pipeline", "open_input", "run"]
+
+
+class Pipeline:
+    """`Pipeline(dataset, config).run(out_dir)`: run the whole system on a stereo dataset.
+
+    `dataset` follows `hippo_nav.datasets.StereoDataset`. `progress` shows a tqdm bar with the frame rate
+    and the map size. `odometry`, `view_cells` and `closure` replace the parts the config's `parts` section
+    names (`frontend.Odometry`, `view_cells.ViewDescriptor`, `closure.ClosureProposer`); `observers` watch
+    the run frame by frame (`observers.Observer`). `system` is the per-frame system; `odometry` the
+    odometry; `record` what has been recorded so far.
+    """
+
+    def __init__(
+        self,
+        dataset: StereoDataset,
+        config: PipelineConfig | None = None,
+        progress: bool = False,
+        *,
+        odometry: Odometry | None = None,
+        view_cells: ViewDescriptor | None = None,
+        closure: ClosureProposer | None = None,
+        observers: Sequence[Observer] = (),
+    ) -> None:
+        self.dataset = dataset
+        self.config = config if config is not None else PipelineConfig()
+        self.progress = progress
+        self.extras = DatasetExtras.of(dataset)
+        self.system = SlamSystem(
+            dataset.calibration,
+            self.config,
+            view_cells=view_cells,
+            closure=closure,
+            stride=self.extras.stride,
+        )
+        # Front-end parts can be given (e.g. another VO in a notebook); by default they come from the config.
+        self.odometry: Odometry = (
+            odometry if odometry is not None else parts.make_odometry(self.config, dataset.calibration)
+        )
+        self.observers = list(observers)
+        n = len(dataset)
+        wanted = self.config.output.state_frames
+        outside = [p for p in (wanted or []) if not 0 <= p < n]
+        if outside:
+            raise HippoNavError(
+                f"output.state_frames: {outside} lie outside this run of {n} frames (positions 0 to {n - 1})"
+            )
+        state_frames = wanted if wanted is not None else [0, n // 2]
+        self._recorder = RunRecorder(state_frames, self.config.engine.place.n_theta // 8)
+
+    @property
+    def record(self) -> RunRecord:
+        return self._recorder.record
+
+    @property
+    def dataset_name(self) -> str:
+        return str(self.dataset.name)
+
+    # ----------------------------------------------------------------------------------------------
+    def run(self, out_dir: str | Path | None = None, overwrite: bool = False) -> RunResult:
+        """Process every frame, correct the map, and (when `out_dir` is given) write the results folder.
+
+        The results folder is checked (and created) before the first frame; one that holds files is
+        refused unless `overwrite` (which clears only what a run writes). Ctrl-C, SIGTERM and SIGHUP stop
+        after the current frame; the frames processed so far are corrected and written, and the result says
+        `interrupted=True` (`metrics["interrupted_by"]` names the signal). Interrupted before the first
+        frame, `KeyboardInterrupt` propagates (nothing to write).
+        """
+        if out_dir is not None:
+            from hippo_nav.pipeline.results import prepare_results_folder
+
+            out_dir = prepare_results_folder(out_dir, overwrite)
+        for warning in self.extras.warnings:
+            log.warning("%s", warning)
+        interrupted = False
+        stopped_by: DatasetError | None = None
+        started = time.perf_counter()
+        record = self.record
+        guard = OdometryGuard(self.odometry)
+        front_end = FrontEnd(self.dataset, guard, self.system.view_cells, self.config.overlap_front_end)
+        info = RunInfo(self.dataset_name, len(self.dataset), self.dataset.ground_truth)
+        with _stop_on_signals() as caught, self._progress_bar() as bar, front_end as front:
+            try:
+                loops = 0
+                for i in range(len(self.dataset)):
+                    self._process(front.get(i), front, info)
+                    if bar is not None:
+                        loops += record.frames[-1].loop_closure is not None
+                        bar.update()
+                        bar.set_postfix(
+                            vertices=len(self.system.map), views=len(self.system.view_recall), loops=loops,
+                            refresh=False,
+                        )  # fmt: skip
+            except KeyboardInterrupt:
+                if len(record) == 0:
+                    raise
+                interrupted = True
+                log.warning(
+                    "interrupted (%s) after %d frames; writing what was processed",
+                    caught.get("signal", "SIGINT"),
+                    len(record),
+                )
+            except DatasetError as err:
+                # A missing or corrupt frame mid-sequence: keep (and write) everything before it, then report.
+                if len(record) == 0:
+                    raise
+                interrupted, stopped_by = True, err
+        self.system.finish()
+        record.wall_s = time.perf_counter() - started
+        self._recorder.final_snapshot(self.system.engine)
+        interrupted_by = caught.get("signal", "SIGINT") if interrupted and stopped_by is None else None
+        result = self._finish(
+            out_dir, interrupted, None if stopped_by is None else str(stopped_by), interrupted_by
+        )
+        for observer in self.observers:
+            observer.on_finish(result)
+        if stopped_by is not None:
+            where = f"written to {out_dir}" if out_dir is not None else "returned in the exception's `result`"
+            error = DatasetError(
+                f"{stopped_by} — stopped there; the results of the {len(record)} frames before it are {where}"
+            )
+            error.result = result  # type: ignore[attr-defined]
+            raise error
+        return result
+
+    # ----------------------------------------------------------------------------------------------
+    def _process(self, front: FrontResult, front_end: FrontEnd, info: RunInfo) -> None:
+        """One frame through the system, then the record and the observers."""
+        record = self.record
+        record.stage_s["load"].append(front.load_s)
+        record.stage_s["vo"].append(front.vo_s)
+        timer = StageTimer(record.stage_s)
+        step = self.system.step(
+            front.frame,
+            front.step,
+            front.vo_status,
+            view_description=front.view_description,
+            worker=front_end.worker,
+            timer=timer,
+        )
+        self._recorder.add(step.record, self.system.engine, step.readout)
+        if self.observers:
+            position = len(record) - 1
+            previous = {s: times[position - 1] for s, times in record.stage_s.items()} if position else None
+            event = FrameEvent(
+                position=position,
+                frame=front.frame,
+                record=step.record,
+                readout=step.readout,
+                features_px=front.features_px,
+                view_cells=len(self.system.view_recall),
+                vertices=len(self.system.map),
+                view_rows=self.system.view_cells.image_rows(front.frame.left.shape[0]),
+                previous_stage_s=previous,
+                run=info,
+                _system=self.system,
+                _map_revision=self.system.map_revision,
+            )
+            for observer in self.observers:
+                observer.on_frame(event)
+        timer.lap("record")
+
+    def _facts(self) -> RunFacts:
+        odometry = OdometryExtras.of(self.odometry)
+        closure = self.system.closure
+        return RunFacts(
+            frames_requested=len(self.dataset),
+            note=self.extras.note,
+            seed=self.config.seed,
+            lesioned=list(self.system.engine.config.lesioned),
+            closure_mode=self.config.map.closure.value,
+            min_loop_separation_m=self.config.map.min_loop_separation_m,
+            view_cells=len(self.system.view_recall),
+            keyframes=0 if closure is None else closure.stored,
+            keyframe_bytes=0 if closure is None else closure.stored_bytes,
+            data_warnings=self.extras.warnings + odometry.warnings,
+            stereo_bias_px=odometry.stereo_bias_px,
+            missing_frames=len(self.extras.missing_frames),
+            frames_without_timestamp=self.extras.frames_without_timestamp,
+        )
+
+    def _finish(
+        self,
+        out_dir: str | Path | None,
+        interrupted: bool,
+        stopped_by: str | None,
+        interrupted_by: str | None = None,
+    ) -> RunResult:
+        """Correct the map, assemble the trajectories, evaluate, and write the results folder."""
+        from hippo_nav.pipeline.results import evaluate, write_results
+
+        clock = time.perf_counter()
+        correction = self.system.correct()
+        correction_s = time.perf_counter() - clock
+        export = {k: np.asarray(v) for k, v in self.system.map.export().items()}
+        result = assemble_result(
+            self.dataset_name,
+            self.record,
+            export,
+            self.system.initial_heading_rad,
+            self.dataset.ground_truth(),
+            interrupted,
+        )
+        result.metrics = evaluate(result, self._facts(), correction, stopped_by)
+        result.metrics["timing"]["correction_s"] = correction_s
+        if interrupted_by is not None:
+            result.metrics["interrupted_by"] = interrupted_by
+        if out_dir is not None:
+            frontend = resolved_frontend_params(self.odometry, self.system.view_cells)
+            write_results(result, Path(out_dir), self.config, frontend, self.system.map)
+        return result
+
+    @contextlib.contextmanager
+    def _progress_bar(self) -> Iterator[Any]:
+        """A tqdm bar (or None), with log lines routed through it so that warnings never glue onto the bar."""
+        if not self.progress:
+            yield None
+            return
+        from tqdm import tqdm
+        from tqdm.contrib.logging import logging_redirect_tqdm
+
+        bar = tqdm(total=len(self.dataset), desc=self.dataset_name, unit="frame", dynamic_ncols=True)
+        try:
+            with logging_redirect_tqdm():
+                yield bar
+        finally:
+            bar.close()
+
+
+@contextlib.contextmanager
+def _stop_on_signals() -> Iterator[dict[str, str]]:
+    """SIGTERM and SIGHUP (what schedulers and `docker stop` send) stop the run like Ctrl-C: the frames
+    processed so far are still written. Yields a dict that names the signal caught. Only the main thread
+    can install handlers; elsewhere the default behaviour stays."""
+    caught: dict[str, str] = {}
+
+    def stop(signum: int, _frame: object) -> None:
+        caught["signal"] = signal.Signals(signum).name
+        raise KeyboardInterrupt
+
+    wanted = [s for s in (getattr(signal, "SIGTERM", None), getattr(signal, "SIGHUP", None)) if s is not None]
+    previous = {}
+    if threading.current_thread() is threading.main_thread():
+        for s in wanted:
+            previous[s] = signal.signal(s, stop)
+    try:
+        yield caught
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+
+
+def open_input(
+    dataset: str | Path | None = None,
+    sequence: str | None = None,
+    start: int | None = None,
+    stop: int | None = None,
+    stride: int = 1,
+    progress: bool = False,
+    kind: str | None = None,
+    options: dict[str, Any] | None = None,
+) -> StereoDataset:
+    """The dataset of a run: any path `open_dataset` reads (a KITTI root, an EuRoC sequence, a ROS bag, a
+    stereo folder; `kind` and loader `options` as there; `sequence` defaults to the loader's), or (no
+    `dataset`) the built-in synthetic demo loop."""
+    from hippo_nav.datasets import KittiOdometry, open_dataset
+
+    if dataset is None:
+        from hippo_nav.synthetic import DEMO_SEQUENCE, demo_sequence
+
+        demo = KittiOdometry(demo_sequence(progress=progress), DEMO_SEQUENCE, start, stop, stride)
+        demo.name = "synthetic demo loop"
+        return demo
+    return open_dataset(
+        dataset, sequence, kind=kind, start=start, stop=stop, stride=stride, **(options or {})
+    )
+
+
+def run(
+    out_dir: str | Path | None = "runs/demo",
+    dataset: str | Path | None = None,
+    sequence: str | None = None,
+    start: int | None = None,
+    stop: int | None = None,
+    stride: int = 1,
+    config: PipelineConfig | None = None,
+    progress: bool = True,
+    odometry: Any = None,
+    overwrite: bool = False,
+    observers: Sequence[Observer] = (),
+    dataset_kind: str | None = None,
+    dataset_options: dict[str, Any] | None = None,
+) -> RunResult:
+    """The `hippo-nav run` command as a function: open the input, run the pipeline, write `out_dir`.
+
+    `dataset` is any path `open_dataset` reads (None: the built-in demo loop); `dataset_kind` and
+    `dataset_options` go to it. `odometry` replaces the built-in stereo VO (e.g. another system's
+    trajectory replayed from a file, see `hippo_nav.vo.replay`); it may also be a callable taking the opened
+    dataset and returning one."""
+    opened = open_input(dataset, sequence, start, stop, stride, progress, dataset_kind, dataset_options)
+    note = DatasetExtras.of(opened).note
+    if note:
+        log.info("%s", note)
+    if callable(odometry) and not hasattr(odometry, "process"):
+        odometry = odometry(opened)
+    pipeline = Pipeline(opened, config, progress=progress, odometry=odometry, observers=observers)
+    return pipeline.run(out_dir, overwrite=overwrite)

@@ -1,0 +1,287 @@
+"""The per-frame SLAM system: odometry → spatial memory ← view cells → experience map, one frame at a time.
+
+`SlamSystem(calibration, config).step(frame, camera_prev_from_camera_cur, vo_status)` processes one
+stereo frame whose odometry step is known and returns what it decided (`SystemStep`: the typed
+`FrameRecord`, the networks' readout). It has no threads, signals, progress bars or files: the runner
+(`runner.Pipeline`) loads frames, measures the odometry ahead, records, shows progress, feeds observers
+and writes results. Per frame, in this order (docs/pipeline.md):
+
+1. Odometry: the SE(3) step is chained into `vo_world_from_camera`. The map's odometry step is the SE(2)
+   motion between the planar parts of consecutive chained poses (`hippo_nav.geometry`), so composing the
+   map's steps reproduces the odometry's planar trajectory exactly; `dt` comes from the frame timestamps.
+2. Local view cells (`ViewRecall`): the frame's view is matched against the cells seen near where the
+   odometry puts the agent; a familiar cell injects its stored network state with a decaying strength.
+3. Spatial memory (HD ring, three grid modules, place torus) integrates the motion with the injection
+   (`MotionLimiter`: clamped to `config.limits`); a new view cell then stores the network's state.
+4. Loop closure (the map's geometric mode): the closure proposer (`hippo_nav.closure`) measures a closure
+   to a vertex the map knows, which the map accepts or rejects.
+5. Experience map: `on_frame(view cell, place code, heading code, planar step, dt, closure)` creates
+   vertices (pure odometry links) and loop links and corrects the map online. Each frame keeps its offset
+   from its vertex, so after the final correction every frame gets a corrected pose (vertex ∘ offset).
+
+Which descriptor fills the view cells and which proposer closes loops is the config's `parts` section
+(`parts.py`). Everything a run learns that could outlive it — the experience map, the view cells with the
+network states they recall, the closure proposer's keyframes — is `SlamSystem.memory`.
+
+Nothing depends on wall-clock time (stages are only timed), and OpenCV's RNG is seeded from `config.seed`,
+so a run is deterministic for a given config and input.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from hippo_nav.closure import ClosureContext, ClosureProposer
+from hippo_nav.closure.proposers import NO_ATTEMPT
+from hippo_nav.datasets.base import StereoCalibration, StereoFrame
+from hippo_nav.engine import SpatialMemory, SpatialReadout
+from hippo_nav.geometry import planar_from_pose, planar_step, se2_between, se2_compose
+from hippo_nav.map import ExperienceMap, MapFrameOutcome, new_experience_map
+from hippo_nav.pipeline import parts
+from hippo_nav.pipeline.config import PipelineConfig
+from hippo_nav.pipeline.policies import MotionLimiter, ViewRecall
+from hippo_nav.pipeline.records import FrameRecord, StageTimer
+from hippo_nav.view_cells import NO_VIEW_CELL, ViewDescriptor
+from hippo_nav.workers import INLINE, Worker
+
+log = logging.getLogger("hippo_nav.pipeline")
+
+__all__ = ["Memory", "SlamSystem", "SystemStep"]
+
+
+@dataclass(frozen=True)
+class SystemStep:
+    """What the system decided for one frame."""
+
+    record: FrameRecord
+    readout: SpatialReadout  # the networks after this frame's step
+
+
+@dataclass(frozen=True)
+class Memory:
+    """What a run has learnt of its world: the parts that would be kept for a later run."""
+
+    experience_map: ExperienceMap
+    view_recall: ViewRecall  # the view cells and the network states they recall
+    closure: (
+        ClosureProposer | None
+    )  # what closures onto known vertices need (keyframes); None in RatSLAM mode
+
+
+class SlamSystem:
+    """The per-frame system (module doc).
+
+    `view_cells` and `closure` replace the parts the config's `parts` section names; `stride` is the
+    dataset's frame stride (a larger jump in frame numbers is flagged as skipped frames). The parts are
+    exposed for notebooks and observers: `engine`, `map`, `view_recall`, `closure`, `limits`.
+    """
+
+    def __init__(
+        self,
+        calibration: StereoCalibration,
+        config: PipelineConfig | None = None,
+        *,
+        view_cells: ViewDescriptor | None = None,
+        closure: ClosureProposer | None = None,
+        stride: int = 1,
+    ) -> None:
+        import cv2
+
+        self.config = config if config is not None else PipelineConfig()
+        cv2.setRNGSeed(int(self.config.seed))
+        self.engine = SpatialMemory(self.config.engine_config())
+        # The seed places the networks' bumps at the start (an animal's grid phases and heading code are
+        # arbitrary where it starts); everything in the map frame is relative to them. OpenCV's RANSAC
+        # uses a fixed internal seed, so the odometry itself is deterministic whatever the seed.
+        rng = np.random.default_rng(self.config.seed)
+        self.initial_heading_rad = float(rng.uniform(-np.pi, np.pi))
+        initial_phase_rad = rng.uniform(0.0, 2 * np.pi, size=2)
+        self.engine.reset(
+            self.initial_heading_rad, (float(initial_phase_rad[0]), float(initial_phase_rad[1]))
+        )
+        descriptor = view_cells if view_cells is not None else parts.make_view_cells(self.config, calibration)
+        self.view_recall = ViewRecall(descriptor, self.config.view_search, self.config.injection)
+        self.map = new_experience_map(self.config.map)
+        self.closure = (
+            closure if closure is not None else parts.make_closure_proposer(self.config, calibration)
+        )
+        self.limits = MotionLimiter(self.config.limits)
+        self.stride = max(int(stride), 1)
+        self.frames = 0  # frames processed
+        self.map_revision = 0  # changes whenever the map may have changed (a frame, a correction)
+        self._vo_pose = np.eye(4)
+        self._last_timestamp_s: float | None = None
+        self._last_frame_index: int | None = None
+        self._last_online_pose = np.zeros(3)
+        self._last_code: tuple[float, float] = (0.0, 0.0)
+
+    @property
+    def view_cells(self) -> ViewDescriptor:
+        return self.view_recall.descriptor
+
+    @property
+    def memory(self) -> Memory:
+        return Memory(self.map, self.view_recall, self.closure)
+
+    # ----------------------------------------------------------------------------------------------
+    def step(
+        self,
+        frame: StereoFrame,
+        camera_prev_from_camera_cur: np.ndarray,
+        vo_status: str = "ok",
+        *,
+        view_description: Any = None,
+        worker: Worker = INLINE,
+        timer: StageTimer | None = None,
+    ) -> SystemStep:
+        """Process one frame whose odometry step is `camera_prev_from_camera_cur` (4 × 4 SE(3), identity on
+        the first frame; `vo_status` as the odometry reported it). `view_description`: the view descriptor's
+        `describe(frame)` when the front end made it ahead (None: made here). Slow work whose result is
+        needed only later goes to `worker`; `timer` is told where each stage ends."""
+        timer = timer if timer is not None else StageTimer()
+        step = np.asarray(camera_prev_from_camera_cur, dtype=np.float64)
+
+        # 1. Odometry → the 3-D pose, the planar step of the map, dt.
+        previous_planar = planar_from_pose(self._vo_pose)
+        self._vo_pose = self._vo_pose @ step
+        planar = se2_between(previous_planar, planar_from_pose(self._vo_pose))
+        planar_step_map = (float(planar[0]), float(planar[1]), float(planar[2]))
+        dt_s = 0.0 if self._last_timestamp_s is None else float(frame.timestamp_s - self._last_timestamp_s)
+        self._last_timestamp_s = float(frame.timestamp_s)
+        data_flags = self._data_flags(frame, dt_s)
+
+        # 2. Local view cells: which view, and what (if anything) it recalls.
+        description = view_description if view_description is not None else self.view_cells.describe(frame)
+        obs = self.view_recall.observe(description, planar_step_map, self.map, self.frames)
+        view, strength = self.view_recall.injection(obs)
+        timer.lap("views")
+
+        # 3. Spatial memory integrates the motion; a new view cell stores the state it reached.
+        readout, motion = self.limits.drive(self.engine, planar_step_map, dt_s, vo_status, view)
+        self.view_recall.remember(obs, self.engine)
+        timer.lap("engine")
+
+        # 4. Loop closure proposed (and measured) for the map to accept or reject.
+        attempt = NO_ATTEMPT
+        if self.closure is not None:
+            cell = obs.cell_id
+            anchor = (
+                self.view_recall.anchor_of(int(cell))
+                if obs.status == "familiar" and cell is not None
+                else None
+            )
+            attempt = self.closure.propose(ClosureContext(frame, planar_step_map, anchor, self.map))
+        timer.lap("closure")
+
+        # 5. Experience map.
+        code = self._place_code(readout)
+        closure = attempt.closure
+        outcome = self.map.on_frame(
+            self.view_recall.active_cell,
+            code,
+            float(readout.heading_rad),
+            planar_step_map,
+            max(dt_s, 0.0),
+            None if closure is None else closure.map_input(),
+        )
+        note = attempt.note
+        if closure is not None:
+            note = "accepted" if outcome.loop_closure is not None else str(outcome.rejected_closure)
+        elif outcome.rejected_closure is not None:
+            note = str(outcome.rejected_closure)
+        if self.closure is not None:
+            self.closure.after_map(frame, outcome, self.map, worker)
+        self.view_recall.anchor(obs, outcome.vertex)
+        timer.lap("map")
+
+        online_pose, vertex_from_agent = self._online_pose(outcome, step)
+        record = FrameRecord(
+            frame_index=int(frame.index),
+            timestamp_s=float(frame.timestamp_s),
+            vo_world_from_camera=self._vo_pose.copy(),
+            vo_status=vo_status,
+            motion_flag=motion.flag,
+            yaw_rate_rad_s=motion.yaw_rate_rad_s,
+            speed_m_s=motion.speed_m_s,
+            view_cell=NO_VIEW_CELL if obs.cell_id is None else int(obs.cell_id),
+            view_status=str(obs.status),
+            view_difference=float(obs.difference),
+            injection_strength=strength,
+            heading_rad=float(readout.heading_rad),
+            place_code_rad=code,
+            place_position_m=(float(readout.place_position_m[0]), float(readout.place_position_m[1])),
+            vertex=-1 if outcome.vertex is None else int(outcome.vertex),
+            vertex_created=bool(outcome.created),
+            loop_closure=outcome.loop_closure,
+            closure_note=note,
+            data_flags=data_flags,
+            online_pose=online_pose,
+            vertex_from_agent=vertex_from_agent,
+        )
+        self.frames += 1
+        self.map_revision += 1
+        self._last_frame_index = int(frame.index)
+        self._last_online_pose = record.online_pose
+        return SystemStep(record, readout)
+
+    def finish(self) -> None:
+        """Wait for work still pending (keyframes being extracted on the worker)."""
+        if self.closure is not None:
+            self.closure.finish()
+
+    def correct(self) -> dict[str, Any]:
+        """The configured final correction (`config.correction`); its report (method "none" when disabled
+        or loop-free)."""
+        cfg = self.config.correction
+        export = self.map.export()
+        if cfg.method == "none" or not np.asarray(export["link_is_loop"]).any():
+            return {"method": "none", "reason": "disabled" if cfg.method == "none" else "no loop closure"}
+        self.map_revision += 1
+        if cfg.method == "relaxation":
+            report = self.map.correct("relaxation", passes=cfg.relaxation_passes, gain=cfg.relaxation_gain)
+        else:
+            report = self.map.correct(
+                "least_squares",
+                initialization="current",
+                robust_loss=cfg.robust_loss,
+                robust_scale_chi2=cfg.robust_scale_chi2,
+                max_iterations=cfg.max_iterations,
+            )
+        return {"method": cfg.method, **report.as_dict()}
+
+    # ----------------------------------------------------------------------------------------------
+    def _data_flags(self, frame: StereoFrame, dt_s: float) -> str:
+        """What is odd about this frame's place in the data: sequence frames skipped before it (holes in
+        the images), or a time gap. Both are logged once here and flagged in frames.csv."""
+        flags = []
+        if self._last_frame_index is not None:
+            skipped = int(frame.index) - self._last_frame_index - self.stride
+            if skipped > 0:
+                flags.append(f"skipped_frames:{skipped}")
+                log.warning("frame %s: %d sequence frame(s) before it are missing", frame.index, skipped)
+        if dt_s > self.config.limits.max_gap_s:
+            flags.append(f"time_gap:{dt_s:.3g}s")
+            log.warning(
+                "frame %s: %.3g s since the previous frame (a gap); its motion is not extrapolated",
+                frame.index,
+                dt_s,
+            )
+        return ";".join(flags)
+
+    def _place_code(self, readout: SpatialReadout) -> tuple[float, float]:
+        """The place bump's centre on the torus; the fused grid estimate (or the last code) without one."""
+        bump = readout.place if readout.place is not None else readout.fused
+        if bump is not None:
+            self._last_code = (float(bump.mean_rad[0]), float(bump.mean_rad[1]))
+        return self._last_code
+
+    def _online_pose(self, outcome: MapFrameOutcome, step: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The map's agent pose and its offset from the current vertex; while lost (relocalising), the pose
+        dead-reckoned from the last online pose and no offset (NaN)."""
+        if outcome.world_from_agent is None:
+            return se2_compose(self._last_online_pose, np.array(planar_step(step))), np.full(3, np.nan)
+        return np.array(outcome.world_from_agent), np.array(outcome.vertex_from_agent)
