@@ -1,13 +1,24 @@
-"""Shared fixtures. Real data lives outside the project, at ../shared/data or $HIPPO_NAV_DATA."""
+"""Shared fixtures and helpers. Tests are grouped by area, one folder per package (`engine/`, `map/`,
+`view_cells/`, `closure/`, `datasets/`, `vo/`, `pipeline/`, `viewer/`, `cli/`, …); what several areas use
+lives here. Real data lives outside the project, at ../shared/data or $HIPPO_NAV_DATA."""
 
 from __future__ import annotations
 
 import os
+import threading
+from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pytest
+from hippo_nav.datasets import KittiOdometry, StereoFrame
+from hippo_nav.pipeline import PipelineConfig, config_from_dict
+from hippo_nav.synthetic import DEMO_SEQUENCE, demo_sequence
 
 PROJECT_ROOT = Path(__file__).resolve().parents[1]
+
+QUIET = {"output": {"figures": False}}
+"""A config section that skips the figures (most tests check numbers, not pictures)."""
 
 
 def shared_data_dir() -> Path | None:
@@ -22,3 +33,62 @@ def shared_data() -> Path:
     if path is None:
         pytest.skip("real data not found: set HIPPO_NAV_DATA or place it at ../shared/data")
     return path
+
+
+@pytest.fixture(scope="session")
+def demo() -> KittiOdometry:
+    """The built-in synthetic demo loop (200 frames, rendered once and cached)."""
+    return KittiOdometry(demo_sequence(), DEMO_SEQUENCE)
+
+
+@pytest.fixture
+def quiet() -> PipelineConfig:
+    """The default config without figures."""
+    return config_from_dict(QUIET)
+
+
+class Frames:
+    """The first `n` frames of a dataset, as a `StereoDataset` of its own: optionally with other
+    timestamps, a hook called when frame i is loaded (`on_load(i)`, e.g. to raise), and a log of every
+    read (`reads`: (frame, reading thread))."""
+
+    def __init__(
+        self,
+        dataset: KittiOdometry,
+        n: int,
+        timestamps_s: np.ndarray | None = None,
+        on_load: Callable[[int], None] | None = None,
+    ) -> None:
+        self.d, self.n, self.on_load = dataset, n, on_load
+        self.name, self.calibration = dataset.name, dataset.calibration
+        self.frame_indices = dataset.frame_indices[:n]
+        self.timestamps_s = dataset.timestamps_s[:n] if timestamps_s is None else np.asarray(timestamps_s)
+        self.reads: list[tuple[int, int]] = []
+
+    def __len__(self) -> int:
+        return self.n
+
+    def __getitem__(self, i: int) -> StereoFrame:
+        self.reads.append((i, threading.get_ident()))
+        if self.on_load is not None:
+            self.on_load(i)
+        frame = self.d[i]
+        return StereoFrame(frame.index, float(self.timestamps_s[i]), frame.left, frame.right)
+
+    def __iter__(self):
+        return (self[i] for i in range(self.n))
+
+    def ground_truth(self) -> np.ndarray | None:
+        gt = self.d.ground_truth()
+        return None if gt is None else gt[: self.n]
+
+
+@pytest.fixture(scope="session")
+def rendered(tmp_path_factory: pytest.TempPathFactory) -> KittiOdometry:
+    """A tiny rendered loop (12 frames of 64×24 pixels) in KITTI layout, for the loaders' tests."""
+    from hippo_nav.synthetic import loop_trajectory, render_sequence
+
+    root = render_sequence(
+        loop_trajectory(12), tmp_path_factory.mktemp("kitti"), "00", image_size_px=(64, 24)
+    )
+    return KittiOdometry(root, "00")

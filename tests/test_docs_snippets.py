@@ -1,4 +1,7 @@
-"""Every Python snippet of the README and docs/ runs as pasted (in a fresh namespace and folder)."""
+"""Every Python snippet of the README and docs/ runs as pasted (in a fresh namespace and folder).
+
+Snippets that show a plug point register their part in a registry (`LOADERS`, `parts.*`); the registries
+are put back after each snippet, so a page never changes what the other tests see."""
 
 from __future__ import annotations
 
@@ -19,7 +22,20 @@ def snippets() -> list:
     return found
 
 
+@pytest.fixture
+def registries():
+    from hippo_nav.datasets import LOADERS
+    from hippo_nav.pipeline import parts
+
+    kept = [(registry, dict(registry)) for registry in (LOADERS, *parts.REGISTRIES.values())]
+    yield
+    for registry, before in kept:
+        registry.clear()
+        registry.update(before)
+
+
 @pytest.mark.parametrize("code", snippets())
-def test_snippet_runs(code, tmp_path, monkeypatch):
+def test_snippet_runs(code, tmp_path, monkeypatch, registries):
     monkeypatch.chdir(tmp_path)
-    exec(compile(code, "<snippet>", "exec"), {"__name__": "__snippet__"})  # noqa: S102 - running the docs is the test
+    # `dont_inherit`: the snippet runs as pasted, without this file's `from __future__ import annotations`.
+    exec(compile(code, "<snippet>", "exec", dont_inherit=True), {"__name__": "__snippet__"})  # noqa: S102 - running the docs is the test

@@ -1,7 +1,7 @@
 """View-cell matching speed (`make bench`; skipped by the default test run).
 
 One round = one query template matched against every stored cell without storing it
-(`ViewCells.best_match`, the pruned exact search), against 1 000 and 10 000 stored random patch-normalised
+(`TemplateViewCells.best_match`, the pruned exact search), against 1 000 and 10 000 stored random patch-normalised
 templates. The baseline is the plain exhaustive search of the same store (`best_match_brute_force`, every
 cell at every shift); compare within one group (`views_1000`, `views_10000`) for the speed-up. Two queries:
 `revisit` (a noisy copy of one stored template, the loop-closure case: the match is found early and prunes
@@ -20,7 +20,7 @@ import cv2
 import numpy as np
 import pytest
 from hippo_nav import _core
-from hippo_nav.views import ViewCells
+from hippo_nav.view_cells import TemplateViewCells as ViewCells
 
 SIZES = (1_000, 10_000)
 RESTRICTED_SIZES = (1_000, 5_000)

@@ -94,7 +94,7 @@ def run_one(sequence: str, variant: str, args: argparse.Namespace) -> dict:
         config.update(RATSLAM)
     started = time.perf_counter()
     result = run(
-        out, kitti=args.renders, sequence=sequence, config=config_from_dict(config), progress=True,
+        out, dataset=args.renders, sequence=sequence, config=config_from_dict(config), progress=True,
         odometry=odometry,
     )  # fmt: skip
     result.metrics["wall_s"] = time.perf_counter() - started

@@ -7,6 +7,7 @@ import threading
 
 import numpy as np
 import pytest
+from conftest import QUIET, Frames
 from hippo_nav import HippoNavError
 from hippo_nav.datasets import KittiOdometry
 from hippo_nav.io import read_kitti_poses, read_tum
@@ -15,30 +16,21 @@ from hippo_nav.pipeline import (
     PipelineConfig,
     config_from_dict,
     load_config,
-    planar_step,
     write_config,
 )
 from hippo_nav.synthetic import (
-    DEMO_SEQUENCE,
     default_cache_dir,
-    demo_sequence,
     kitti_trajectory,
-    planar_poses,
     render_cached,
     scale_trajectory,
 )
-from hippo_nav.vo import VoParams
+from hippo_nav.vo import StereoOdometry, VoParams
 
 # A real KITTI loop shape: sequence 05, frames 700–1600 (a 560 m block driven once, then ~50 m of it
 # again), every 4th frame, scaled by 0.35 so that a 10 Hz rendering moves ≤ 1.6 m and turns ≤ 2.1 rad/s
 # per second — 225 frames, 234 m. The revisit starts at frame 730 + the loop, i.e. position ≈ 186.
 LOOP_SEQUENCE = ("05", 700, 1600, 4, 0.35)
 REVISIT_FROM = 180
-
-
-@pytest.fixture(scope="module")
-def demo() -> KittiOdometry:
-    return KittiOdometry(demo_sequence(), DEMO_SEQUENCE)
 
 
 @pytest.fixture(scope="module")
@@ -49,39 +41,6 @@ def kitti_loop(shared_data) -> KittiOdometry:
     poses = scale_trajectory(kitti_trajectory(pose_file, start, stop, stride), scale)
     root = render_cached(poses, default_cache_dir() / "test_loop05", sequence, seed=0)
     return KittiOdometry(root, sequence)
-
-
-class _Subset:
-    """The first `n` frames of a dataset (same protocol)."""
-
-    def __init__(self, dataset, n: int, fail_at: int | None = None, interrupt_at: int | None = None):
-        self._d, self._n, self._fail_at, self._interrupt_at = dataset, n, fail_at, interrupt_at
-        self.name, self.calibration = dataset.name, dataset.calibration
-        self.frame_indices, self.timestamps_s = dataset.frame_indices[:n], dataset.timestamps_s[:n]
-        self.reads: list[tuple[int, int]] = []  # (frame, reading thread) of every __getitem__
-
-    def __len__(self) -> int:
-        return self._n
-
-    def __getitem__(self, i: int):
-        self.reads.append((i, threading.get_ident()))
-        if i == self._interrupt_at:
-            raise KeyboardInterrupt
-        return self._d[i]
-
-    def ground_truth(self):
-        gt = self._d.ground_truth()
-        return None if gt is None else gt[: self._n]
-
-
-def test_planar_step_follows_the_kitti_camera_conventions():
-    # A level camera that drove 2 m forward and 0.5 m to its left while turning 0.1 rad to the left.
-    start, end = planar_poses([0.0, 2.0], [0.0, 0.5], [0.0, 0.1])
-    forward, left, yaw = planar_step(np.linalg.inv(start) @ end)
-    assert (forward, left, yaw) == pytest.approx((2.0, 0.5, 0.1), abs=1e-12)
-    # Seen from a turned camera the same world motion is expressed in that camera's axes.
-    start, end = planar_poses([0.0, 0.0], [0.0, 1.0], [np.pi / 2, np.pi / 2])
-    assert planar_step(np.linalg.inv(start) @ end) == pytest.approx((1.0, 0.0, 0.0), abs=1e-12)
 
 
 def test_config_round_trips_and_names_bad_fields(tmp_path):
@@ -104,8 +63,8 @@ def test_config_round_trips_and_names_bad_fields(tmp_path):
 def test_a_short_run_is_deterministic_and_writes_every_result(demo, tmp_path):
     """Two runs give the same results, the second with the front end on the calling thread: running the
     odometry a frame ahead (the default) changes nothing but the speed."""
-    data = _Subset(demo, 25)
-    config = config_from_dict({"output": {"figures": False}})
+    data = Frames(demo, 25)
+    config = config_from_dict(QUIET)
     overlapped = Pipeline(data, config)
     measure = overlapped.odometry.process
     vo_threads: set[int] = set()
@@ -147,10 +106,13 @@ def test_a_short_run_is_deterministic_and_writes_every_result(demo, tmp_path):
     assert (out / "map.bin").stat().st_size > 0 and (out / "frames.csv").read_text().count("\n") == 26
 
 
-def test_interrupt_keeps_the_frames_processed(demo, tmp_path):
-    result = Pipeline(
-        _Subset(demo, 40, interrupt_at=12), config_from_dict({"output": {"figures": False}})
-    ).run(tmp_path)
+def _interrupt_at_12(i: int) -> None:
+    if i == 12:
+        raise KeyboardInterrupt
+
+
+def test_interrupt_keeps_the_frames_processed(demo, quiet, tmp_path):
+    result = Pipeline(Frames(demo, 40, on_load=_interrupt_at_12), quiet).run(tmp_path)
     assert result.interrupted and result.metrics["frames"] == 12
     assert read_kitti_poses(tmp_path / "trajectory_corrected.kitti.txt").shape == (12, 4, 4)
     assert json.loads((tmp_path / "metrics.json").read_text())["interrupted"] is True
@@ -175,10 +137,8 @@ class _FailingOdometry:
 
 
 def test_vo_failures_and_absurd_motion_are_flagged_not_fatal(demo):
-    from hippo_nav.pipeline.frontend import make_odometry
-
-    data = _Subset(demo, 20)
-    odometry = _FailingOdometry(make_odometry(data.calibration, VoParams()), fail={6, 7}, absurd={12})
+    data = Frames(demo, 20)
+    odometry = _FailingOdometry(StereoOdometry(data.calibration, VoParams()), fail={6, 7}, absurd={12})
     result = Pipeline(data, odometry=odometry).run(None)
     record = result.record
     assert len(record) == 20
@@ -211,8 +171,6 @@ class _DriftingOdometry:
 
 @pytest.mark.slow
 def test_synthetic_kitti_loop_is_closed_and_correction_beats_the_vo(kitti_loop, tmp_path):
-    from hippo_nav.pipeline.frontend import make_odometry
-
     # The stereo VO as it is: the revisit closes the loop, the figures are written, and the corrected
     # map stays within the map's resolution of the truth.
     result = Pipeline(kitti_loop, PipelineConfig()).run(tmp_path)
@@ -225,8 +183,8 @@ def test_synthetic_kitti_loop_is_closed_and_correction_beats_the_vo(kitti_loop, 
     assert len(list(tmp_path.glob("neural_state_*.png"))) >= 2
 
     # With a real VO's drift the closure must pull the map back: the corrected map beats the VO.
-    odometry = _DriftingOdometry(make_odometry(kitti_loop.calibration, VoParams()))
-    config = config_from_dict({"output": {"figures": False}})
+    odometry = _DriftingOdometry(StereoOdometry(kitti_loop.calibration, VoParams()))
+    config = config_from_dict(QUIET)
     drifted = Pipeline(kitti_loop, config, odometry=odometry).run(None)
     closures = np.array(drifted.metrics["loop_closure_frames"])
     assert (closures >= REVISIT_FROM).any(), closures

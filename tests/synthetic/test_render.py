@@ -72,7 +72,7 @@ def test_render_command_and_its_errors(kitti_root, tmp_path, capsys):
     out = tmp_path / "cli"
     args = ["render", "--kitti", str(kitti_root), "--sequence", "07", "--out", str(out), "--no-progress"]
     assert main([*args, "--size", "64x24", "--stop", "3"]) == 0
-    assert "hippo-nav run --kitti" in capsys.readouterr().out
+    assert "hippo-nav run --dataset" in capsys.readouterr().out
     assert len(list((out / "sequences" / "07" / "image_1").glob("*.png"))) == 3
     assert main([*args, "--size", "64by24"]) == 2
     assert "--size" in capsys.readouterr().err

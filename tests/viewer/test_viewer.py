@@ -14,7 +14,7 @@ import pytest
 from hippo_nav import SpatialMemory
 from hippo_nav.cli import build_parser, main
 from hippo_nav.datasets import KittiOdometry
-from hippo_nav.pipeline import Pipeline, config_from_dict
+from hippo_nav.pipeline import FrameEvent, NetworkActivity, Pipeline, config_from_dict
 from hippo_nav.pipeline.frontend import tracked_pixels
 from hippo_nav.pipeline.records import STAGES
 from hippo_nav.synthetic import DEMO_SEQUENCE, demo_sequence
@@ -243,7 +243,7 @@ def test_decoded_bumps_sit_on_the_activity_peaks():
         "layer2_k4": memory.grid_layer2(2),
         "hd_ring": memory.hd_activity(),
     }
-    for panel in neural_panels(memory, readout):
+    for panel in neural_panels(NetworkActivity.of(memory), readout):
         if panel.name not in raw:
             continue
         activity = raw[panel.name]
@@ -279,10 +279,10 @@ def test_the_viewer_draws_the_features_of_the_frame_it_shows_not_the_next_one():
     demo_subset, seen = demo(12), []
 
     class Watch:
-        def on_frame(self, pipeline, frame, record, readout):
-            seen.append(pipeline.frame_features_px.copy())
+        def on_frame(self, event: FrameEvent) -> None:
+            seen.append(event.features_px.copy())
 
-        def on_finish(self, result):
+        def on_finish(self, result) -> None:
             pass
 
     Pipeline(demo_subset, config_from_dict({"output": {"figures": False}}), observers=[Watch()]).run(None)

@@ -20,18 +20,10 @@ from rosbags.rosbag2 import StoragePlugin
 from rosbags.rosbag2 import Writer as Writer2
 from rosbags.typesys import Stores, get_typestore
 
-N_FRAMES = 12
+N_FRAMES = 12  # frames of the shared `rendered` loop (conftest.py)
 T0_NS = 1_700_000_000_000_000_000
 PERIOD_NS = 100_000_000
 LEFT, RIGHT = "/stereo/left/image_rect", "/stereo/right/image_rect"
-
-
-@pytest.fixture(scope="module")
-def rendered(tmp_path_factory) -> KittiOdometry:
-    root = render_sequence(
-        loop_trajectory(N_FRAMES), tmp_path_factory.mktemp("kitti"), "00", image_size_px=(64, 24)
-    )
-    return KittiOdometry(root, "00")
 
 
 def stamp_ns(i: int) -> int:

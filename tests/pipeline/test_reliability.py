@@ -12,6 +12,7 @@ import signal
 import cv2
 import numpy as np
 import pytest
+from conftest import QUIET, Frames
 from hippo_nav import HippoNavError
 from hippo_nav.cli import main
 from hippo_nav.datasets import KittiOdometry
@@ -19,35 +20,6 @@ from hippo_nav.engine import EngineConfig, SpatialMemory, ViewPatterns
 from hippo_nav.pipeline import Pipeline, config_from_dict
 from hippo_nav.synthetic import DEMO_SEQUENCE, demo_sequence
 from hippo_nav.vo import StereoOdometry
-
-QUIET = {"output": {"figures": False}}
-
-
-@pytest.fixture(scope="module")
-def demo() -> KittiOdometry:
-    return KittiOdometry(demo_sequence(), DEMO_SEQUENCE)
-
-
-class Frames:
-    """The first `n` frames of a dataset, optionally with other timestamps or a hook on loading."""
-
-    def __init__(self, dataset, n, timestamps_s=None, on_load=None):
-        self.d, self.n, self.on_load = dataset, n, on_load
-        self.name, self.calibration = dataset.name, dataset.calibration
-        self.frame_indices = dataset.frame_indices[:n]
-        self.timestamps_s = dataset.timestamps_s[:n] if timestamps_s is None else np.asarray(timestamps_s)
-
-    def __len__(self):
-        return self.n
-
-    def __getitem__(self, i):
-        if self.on_load is not None:
-            self.on_load(i)
-        frame = self.d[i]
-        return type(frame)(frame.index, float(self.timestamps_s[i]), frame.left, frame.right)
-
-    def ground_truth(self):
-        return self.d.ground_truth()[: self.n]
 
 
 def _one_line_error(capsys) -> str:
@@ -130,7 +102,7 @@ def test_sigterm_and_sighup_keep_the_frames_processed(demo, tmp_path, monkeypatc
             os.kill(os.getpid(), getattr(signal, signame))
 
     monkeypatch.setattr(
-        "hippo_nav.pipeline.pipeline.open_input", lambda *a, **k: Frames(demo, 30, on_load=kill_at_frame_8)
+        "hippo_nav.pipeline.runner.open_input", lambda *a, **k: Frames(demo, 30, on_load=kill_at_frame_8)
     )
     out = tmp_path / "out"
     assert main(["run", "--no-progress", "--no-figures", "--out", str(out)]) == code
@@ -146,7 +118,7 @@ def test_ctrl_c_before_the_first_frame_exits_130(demo, tmp_path, monkeypatch, ca
         raise KeyboardInterrupt
 
     monkeypatch.setattr(
-        "hippo_nav.pipeline.pipeline.open_input", lambda *a, **k: Frames(demo, 30, on_load=interrupt)
+        "hippo_nav.pipeline.runner.open_input", lambda *a, **k: Frames(demo, 30, on_load=interrupt)
     )
     assert main(["run", "--no-progress", "--out", str(tmp_path / "out")]) == 130
 
@@ -282,7 +254,7 @@ def test_the_vo_prior_does_not_extrapolate_over_a_gap(demo):
 def test_a_failing_keyframe_extraction_costs_closures_not_the_run(demo, tmp_path, caplog, overlap):
     """A vertex's keyframe is extracted beside the next frame's odometry (or inline without the overlap);
     when extraction raises, the run still finishes and writes everything, and says which vertex lacks it."""
-    from hippo_nav.closure import KeyframeExtractor
+    from hippo_nav.closure import KeyframeExtractor, ViewCellPnpClosure
 
     real, calls = KeyframeExtractor.__call__, []
 
@@ -294,13 +266,15 @@ def test_a_failing_keyframe_extraction_costs_closures_not_the_run(demo, tmp_path
 
     config = config_from_dict({**QUIET, "overlap_front_end": overlap})
     pipeline = Pipeline(Frames(demo, 30), config)
-    pipeline._extract.__class__.__call__ = fails_on_the_third
+    KeyframeExtractor.__call__ = fails_on_the_third  # type: ignore[method-assign]
     try:
         with caplog.at_level("WARNING", logger="hippo_nav.pipeline"):
             result = pipeline.run(tmp_path / "out")
     finally:
-        KeyframeExtractor.__call__ = real
+        KeyframeExtractor.__call__ = real  # type: ignore[method-assign]
     assert not result.interrupted and len(result.record) == 30
-    assert len(pipeline.keyframes) == len(calls) - 1 >= 3
+    closure = pipeline.system.closure
+    assert isinstance(closure, ViewCellPnpClosure)
+    assert len(closure.keyframes) == result.metrics["keyframes"] == len(calls) - 1 >= 3
     assert "no stereo keyframe" in caplog.text
     assert (tmp_path / "out" / "metrics.json").is_file()

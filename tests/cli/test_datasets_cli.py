@@ -147,7 +147,10 @@ def test_run_on_a_ros_bag_with_topic_flags(rendered: KittiOdometry, tmp_path: Pa
         ),
         (["--dataset-kind", "euroc"], "--dataset-kind needs --dataset PATH"),
         (["--left-topic", "/l", "--right-topic", "/r"], "--left-topic, --right-topic needs --dataset PATH"),
-        (["--kitti", "{tmp}", "--dataset", "{folder}"], "give --kitti ROOT or --dataset PATH, not both"),
+        (
+            ["--kitti", "{tmp}", "--dataset", "{folder}"],
+            "give one dataset path: --kitti and --dataset name the same",
+        ),
         (["--dataset", "{folder}", "--dataset-kind", "euroc"], "not an EuRoC/ASL sequence"),
         (["--dataset", "{tmp}"], "no loader recognises this path"),
         (["--dataset", "{folder}", "--stop", "40"], r"frame range [0, 40) is empty or outside the sequence"),

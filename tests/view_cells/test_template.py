@@ -1,4 +1,4 @@
-"""Local view cells through the Python package: templates, matching, headings, bad input, real images."""
+"""The template view descriptor through the Python package: templates, matching, headings, bad input, real images."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 from hippo_nav import HippoNavError, _core
 from hippo_nav.datasets import KittiOdometry
 from hippo_nav.synthetic import DEMO_SEQUENCE, demo_sequence
-from hippo_nav.views import ViewCellConfig, ViewCells, field_of_view_rad
+from hippo_nav.view_cells import TemplateViewCells, TemplateViewConfig, field_of_view_rad
 from pydantic import ValidationError
 
 
@@ -24,14 +24,14 @@ def textured_image(seed: int, shape: tuple[int, int] = (376, 1241)) -> np.ndarra
 
 
 def test_python_defaults_are_the_rust_defaults() -> None:
-    rust = json.loads(_core.default_view_config_json())
-    python = json.loads(ViewCellConfig().model_dump_json())
+    rust = json.loads(_core.default_params_json("views"))
+    python = json.loads(TemplateViewConfig().model_dump_json())
     assert python == rust
-    assert json.loads(_core._ViewCells(ViewCellConfig().model_dump_json()).config_json()) == rust
+    assert json.loads(_core._ViewCells(TemplateViewConfig().model_dump_json()).params_json()) == rust
 
 
 def test_template_is_patch_normalised_and_exposure_invariant() -> None:
-    cells = ViewCells()
+    cells = TemplateViewCells()
     img = textured_image(0)
     t = cells.template_from_image(img)
     cfg = cells.config
@@ -45,7 +45,7 @@ def test_template_is_patch_normalised_and_exposure_invariant() -> None:
 
 
 def test_any_layout_gives_the_same_answer() -> None:
-    cells = ViewCells()
+    cells = TemplateViewCells()
     img = textured_image(1)
     t = cells.template_from_image(img)
     assert np.array_equal(cells.template_from_image(np.asfortranarray(img)), t)
@@ -61,7 +61,7 @@ def test_any_layout_gives_the_same_answer() -> None:
 
 def test_turning_left_gives_a_positive_relative_heading() -> None:
     fov = field_of_view_rad(718.856, 1241)
-    cells = ViewCells(ViewCellConfig(field_of_view_rad=fov))
+    cells = TemplateViewCells(TemplateViewConfig(field_of_view_rad=fov))
     img = textured_image(2, (376, 1400))
     for seed in range(3, 8):  # other places, so the match has competition
         cells.observe(cells.template_from_image(textured_image(seed)[:, :1241]))
@@ -78,7 +78,7 @@ def test_turning_left_gives_a_positive_relative_heading() -> None:
 
 
 def test_unrelated_places_become_new_cells_and_blank_frames_are_uninformative() -> None:
-    cells = ViewCells()
+    cells = TemplateViewCells()
     results = [cells.observe(cells.template_from_image(textured_image(s))) for s in range(10, 20)]
     assert all(r.is_new for r in results) and [r.cell_id for r in results] == list(range(10))
     assert all(0.5 < r.difference <= 1.0 for r in results)
@@ -89,7 +89,7 @@ def test_unrelated_places_become_new_cells_and_blank_frames_are_uninformative() 
 
 
 def test_any_layout_and_dtype_give_the_same_template() -> None:
-    cells = ViewCells()
+    cells = TemplateViewCells()
     img = textured_image(3)
     t = cells.template_from_image(img)
     assert np.array_equal(cells.template_from_image(img[:, ::1]), t)
@@ -113,7 +113,7 @@ def test_any_layout_and_dtype_give_the_same_template() -> None:
 def test_pruned_search_equals_brute_force() -> None:
     """The fast `best_match` is exact: same cell, difference and shift as the exhaustive search."""
     rng = np.random.default_rng(7)
-    cells = ViewCells()
+    cells = TemplateViewCells()
     base = [cells.template_from_image(textured_image(100 + k, (120, 400))) for k in range(40)]
     for t in base:
         cells.add(t)
@@ -138,13 +138,13 @@ def test_pruned_search_equals_brute_force() -> None:
         assert s[fast[0]] == fast[2]
     assert cells.best_match(base[5])[:2] == (5, 0.0)
     assert cells.best_match(np.roll(base[9], 3, axis=1))[0] == 9
-    assert ViewCells().best_match(base[0]) is None
+    assert TemplateViewCells().best_match(base[0]) is None
 
 
 def test_restricted_search_is_exact_within_the_candidates() -> None:
     """`candidates` restricts the search: the answer is brute force over those cells (via `differences`)."""
     rng = np.random.default_rng(11)
-    cells = ViewCells()
+    cells = TemplateViewCells()
     base = [cells.template_from_image(textured_image(200 + k, (120, 400))) for k in range(60)]
     for t in base:
         cells.add(t)
@@ -171,7 +171,7 @@ def test_restricted_search_is_exact_within_the_candidates() -> None:
 
 
 def test_restricted_observe_is_familiar_only_among_the_candidates() -> None:
-    cells = ViewCells()
+    cells = TemplateViewCells()
     for seed in range(300, 310):
         cells.observe(cells.template_from_image(textured_image(seed, (120, 400))))
     revisit = cells.template_from_image(textured_image(304, (120, 400)))
@@ -188,7 +188,7 @@ def test_restricted_observe_is_familiar_only_among_the_candidates() -> None:
 
 
 def test_bad_candidates_raise_clear_errors_and_store_nothing() -> None:
-    cells = ViewCells()
+    cells = TemplateViewCells()
     t = cells.template_from_image(textured_image(400, (120, 400)))
     cells.add(t)
     other = cells.template_from_image(textured_image(401, (120, 400)))
@@ -206,12 +206,12 @@ def test_bad_candidates_raise_clear_errors_and_store_nothing() -> None:
 
 
 def test_templates_round_trip_through_add() -> None:
-    cells = ViewCells()
+    cells = TemplateViewCells()
     for seed in range(30, 36):
         cells.observe(cells.template_from_image(textured_image(seed, (120, 400))))
     saved = cells.templates()
     assert saved.shape == (6, 24, 64) and saved.dtype == np.float32
-    restored = ViewCells(cells.config)
+    restored = TemplateViewCells(cells.config)
     assert [restored.add(t) for t in saved] == list(range(6))
     assert np.array_equal(restored.templates(), saved)
     q = cells.template_from_image(textured_image(33, (120, 400)))
@@ -219,7 +219,7 @@ def test_templates_round_trip_through_add() -> None:
 
 
 def test_bad_input_raises_clear_errors() -> None:
-    cells = ViewCells()
+    cells = TemplateViewCells()
     with pytest.raises(HippoNavError, match=r"gray image of shape \(H, W\).*cvtColor"):
         cells.template_from_image(np.zeros((376, 1241, 3), np.uint8))
     with pytest.raises(HippoNavError, match=r"gray image of shape \(H, W\), got shape \(1241,\)"):
@@ -274,9 +274,9 @@ def test_bad_input_raises_clear_errors() -> None:
     ]
     for fields, message in bad_configs:
         with pytest.raises(HippoNavError, match=message):
-            ViewCells(ViewCellConfig(**fields))
+            TemplateViewCells(TemplateViewConfig(**fields))
     with pytest.raises(ValidationError):
-        ViewCellConfig(width=64)  # type: ignore[call-arg]
+        TemplateViewConfig(width=64)  # type: ignore[call-arg]
     with pytest.raises(HippoNavError, match="invalid view-cell config"):
         _core._ViewCells('{"width_px": "wide"}')
     with pytest.raises(HippoNavError, match="fx_px > 0"):
@@ -286,7 +286,7 @@ def test_bad_input_raises_clear_errors() -> None:
 
 
 def test_blank_and_dark_frames_are_uninformative() -> None:
-    cells = ViewCells()
+    cells = TemplateViewCells()
     cells.observe(cells.template_from_image(textured_image(50)))
     for value in (0, 90, 255):
         blank = np.full((376, 1241), value, np.uint8)
@@ -319,7 +319,7 @@ def test_blank_and_dark_frames_are_uninformative() -> None:
     with pytest.raises(HippoNavError, match="multiply by 255"):
         cells.template_from_image(textured_image(53) / 255.0)
     # The empty store: a textured view becomes cell 0 with difference 1.
-    fresh = ViewCells()
+    fresh = TemplateViewCells()
     obs = fresh.observe(fresh.template_from_image(textured_image(51)))
     assert (obs.status, obs.cell_id, obs.difference) == ("new", 0, 1.0)
 
@@ -341,7 +341,7 @@ def test_second_lap_of_the_synthetic_loop_recognises_the_first() -> None:
     assert poses is not None
     calib = dataset.calibration
     fov = field_of_view_rad(calib.fx, calib.image_size_px[0])
-    cells = ViewCells(ViewCellConfig(field_of_view_rad=fov))
+    cells = TemplateViewCells(TemplateViewConfig(field_of_view_rad=fov))
     position = poses[:, :3, 3][:, [0, 2]]  # ground plane (x, z)
     heading = _ccw_heading_rad(poses)
     travelled = np.r_[0.0, np.cumsum(np.linalg.norm(np.diff(poses[:, :3, 3], axis=0), axis=1))]
@@ -399,7 +399,7 @@ def test_second_lap_of_the_synthetic_loop_recognises_the_first() -> None:
 @pytest.mark.data
 def test_kitti_consecutive_frames_are_familiar_and_distant_ones_are_not(shared_data) -> None:
     seq = shared_data / "kitti_odometry" / "sequences" / "00" / "image_0"
-    cells = ViewCells()
+    cells = TemplateViewCells()
 
     def template(i: int) -> np.ndarray:
         return cells.template_from_image(cv2.imread(str(seq / f"{i:06d}.png"), cv2.IMREAD_GRAYSCALE))
@@ -418,7 +418,7 @@ def test_rtabmap_loop_revisits_are_closer_than_other_pairs(shared_data) -> None:
     files = sorted(root.glob("*.jpg"), key=lambda p: int(p.stem))
     truth = cv2.imread(str(root / "samples_GT.bmp"), cv2.IMREAD_GRAYSCALE) > 0
     truth |= truth.T
-    cells = ViewCells(ViewCellConfig(crop_rows_frac=(0.0, 1.0)))
+    cells = TemplateViewCells(TemplateViewConfig(crop_rows_frac=(0.0, 1.0)))
     templates = [cells.template_from_image(cv2.imread(str(f), cv2.IMREAD_GRAYSCALE)) for f in files]
     for t in templates:
         cells.add(t)
@@ -446,7 +446,7 @@ def test_rtabmap_loop_precision_and_recall(shared_data) -> None:
         cv2.imread(str(root / "samples_GT.bmp"), cv2.IMREAD_GRAYSCALE) > 0
     )  # truth[i, j]: i revisits j < i
     assert truth.shape == (84, 84) and not np.triu(truth).any()
-    cells = ViewCells()
+    cells = TemplateViewCells()
     created_at: dict[int, int] = {}
     claims, correct, gap = [], [], 5
     for i, f in enumerate(files):

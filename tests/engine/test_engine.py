@@ -31,7 +31,7 @@ def settled() -> SpatialMemory:
 
 
 def test_python_config_defaults_are_the_rust_defaults():
-    from_rust = json.loads(_core.default_engine_config_json())
+    from_rust = json.loads(_core.default_params_json("engine"))
     from_python = json.loads(EngineConfig().to_json())
     assert from_python == from_rust
     # Partial configs fill the rest from the Rust defaults.

@@ -12,18 +12,9 @@ import numpy as np
 import pytest
 from hippo_nav.datasets import DatasetError, KittiOdometry, StereoDataset, StereoFolder, open_dataset
 from hippo_nav.io import write_tum
-from hippo_nav.synthetic import loop_trajectory, render_sequence
 
-N_FRAMES = 12
+N_FRAMES = 12  # frames of the shared `rendered` loop (conftest.py)
 T0_S = 1000.0
-
-
-@pytest.fixture(scope="module")
-def rendered(tmp_path_factory) -> KittiOdometry:
-    root = render_sequence(
-        loop_trajectory(N_FRAMES), tmp_path_factory.mktemp("kitti"), "00", image_size_px=(64, 24)
-    )
-    return KittiOdometry(root, "00")
 
 
 def write_folder(

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 import pytest
-from hippo_nav import HippoNavError
+from hippo_nav import HippoNavError, _core
 from hippo_nav.map import (
     ClosureMode,
     CorrectionReport,
@@ -49,7 +49,7 @@ def chain(steps: list[tuple[float, float, float]]) -> list[tuple[float, float, f
 
 
 def test_python_defaults_are_the_rust_defaults() -> None:
-    assert json.loads(MapParams().model_dump_json()) == json.loads(ExperienceMap.default_params_json())
+    assert json.loads(MapParams().model_dump_json()) == json.loads(_core.default_params_json("map"))
 
 
 def test_ratslam_second_lap_closes_the_loop_and_both_correctors_reduce_the_cost() -> None:
