@@ -57,15 +57,22 @@ def _loaders_taking(option: str) -> list[str]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from hippo_nav.datasets import LOADERS
-    from hippo_nav.engine import MODULE_NAMES
-    from hippo_nav.vo.replay import ALIGNMENTS, FORMATS
-
     parser = argparse.ArgumentParser(
         prog="hippo-nav", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--version", action="version", version=f"hippo-nav {_version()}")
     sub = parser.add_subparsers(dest="command", required=True)
+    _add_run(sub)
+    _add_render(sub)
+    _add_figures(sub)
+    return parser
+
+
+def _add_run(sub: argparse._SubParsersAction) -> None:
+    """`hippo-nav run`: its choices come from the loader registry, the module names and the replay formats."""
+    from hippo_nav.datasets import LOADERS
+    from hippo_nav.engine import MODULE_NAMES
+    from hippo_nav.vo.replay import ALIGNMENTS, FORMATS
 
     run = sub.add_parser(
         "run",
@@ -92,13 +99,13 @@ def build_parser() -> argparse.ArgumentParser:
         default=None,
         help="read --dataset as this kind instead of detecting it (default: detected from the layout)",
     )
-    numbered = ", ".join(f"{kind}: {loader.DEFAULT_SEQUENCE}" for kind, loader in LOADERS.items()
+    numbered = "; ".join(f"{loader.DEFAULT_SEQUENCE} for {kind}" for kind, loader in LOADERS.items()
                          if loader.DEFAULT_SEQUENCE is not None)  # fmt: skip
     data.add_argument(
         "--sequence",
         default=None,
-        help=f"the sequence inside --dataset: a sequence number ({numbered} when not given) or a sequence "
-        "folder (EuRoC, stereo folder) (default: the whole path)",
+        help="the sequence inside --dataset: a sequence number (KITTI) or a sequence folder (EuRoC, stereo "
+        f"folder) (default: {numbered}; else the path itself)",
     )
     data.add_argument("--start", type=int, default=None, help="first frame (default: the sequence's first)")
     data.add_argument("--stop", type=int, default=None, help="frame to stop before (default: run to the end)")
@@ -198,6 +205,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="with --video, one video frame every N frames (and one after the final correction)",
     )
 
+
+def _add_render(sub: argparse._SubParsersAction) -> None:
     render = sub.add_parser(
         "render",
         help="render the synthetic stereo street along a KITTI ground truth into a KITTI root",
@@ -223,6 +232,8 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--workers", type=int, default=2, help="rendering threads (default 2)")
     render.add_argument("--no-progress", action="store_true", help="no progress bar")
 
+
+def _add_figures(sub: argparse._SubParsersAction) -> None:
     figures = sub.add_parser(
         "figures",
         help="write the paper's theory figures as PNG files",
@@ -230,7 +241,6 @@ def build_parser() -> argparse.ArgumentParser:
         formatter_class=_HelpFormatter,
     )
     figures.add_argument("--out", default="runs/figures", help="folder for the PNG files")
-    return parser
 
 
 MAX_SEED = 2**31 - 1

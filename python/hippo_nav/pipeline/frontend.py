@@ -223,11 +223,18 @@ class FrontEnd:
 
 
 def resolved_frontend_params(odometry: object, view_cells: object) -> dict[str, Any]:
-    """The front end's parameters with every default filled in (for the resolved config written with the
-    results); a part given without a pydantic config (a custom front end) is left out."""
+    """The parameters of the built-in front-end parts with every default filled in (for the resolved config
+    written with the results: `vo` with the seed, `views` with the camera's field of view); another part
+    keeps its own section as configured."""
+    from hippo_nav.view_cells import TemplateViewConfig
+    from hippo_nav.vo import VoParams
+
     resolved = {}
-    for section, part, attr in (("vo", odometry, "params"), ("views", view_cells, "config")):
+    for section, part, attr, kind in (
+        ("vo", odometry, "params", VoParams),
+        ("views", view_cells, "config", TemplateViewConfig),
+    ):
         params = getattr(part, attr, None)
-        if params is not None and hasattr(params, "model_dump"):
+        if isinstance(params, kind):
             resolved[section] = params.model_dump(mode="json")
     return resolved
