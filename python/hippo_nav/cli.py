@@ -1,5 +1,6 @@
 """Command line: `hippo-nav run` (the main job: the SLAM pipeline), `hippo-nav render` (a synthetic stereo
-street along a KITTI ground truth) and `hippo-nav figures` (the paper's theory figures).
+street along a KITTI ground truth), `hippo-nav figures` (the paper's theory figures) and `hippo-nav
+vocabulary` (the word view cells' vocabulary, trained on a folder of images or remade from the renders).
 
 Exit codes: 0 done; 2 bad input (one line on stderr saying what to fix; nothing is processed) or a frame
 that cannot be read mid-run (the results of the frames before it are written); 130 interrupted by Ctrl-C,
@@ -65,6 +66,7 @@ def build_parser() -> argparse.ArgumentParser:
     _add_run(sub)
     _add_render(sub)
     _add_figures(sub)
+    _add_vocabulary(sub)
     return parser
 
 
@@ -241,6 +243,26 @@ def _add_figures(sub: argparse._SubParsersAction) -> None:
         formatter_class=_HelpFormatter,
     )
     figures.add_argument("--out", default="runs/figures", help="folder for the PNG files")
+
+
+def _add_vocabulary(sub: argparse._SubParsersAction) -> None:
+    vocabulary = sub.add_parser(
+        "vocabulary",
+        help="train the word view cells' vocabulary (on your images, or remake the shipped one)",
+        description="Trains a vocabulary of binary words for the word view cells (docs/views.md) on the ORB "
+        "features of the images in --images (every PNG/JPEG in the folder, gray or colour), or, without "
+        "--images, on the procedural street renders the shipped vocabulary was trained on (the result is "
+        "then the shipped file). Use it with the config's view_words.vocabulary = FILE.",
+        formatter_class=_HelpFormatter,
+    )
+    vocabulary.add_argument("--out", required=True, metavar="FILE", help="vocabulary file to write")
+    vocabulary.add_argument(
+        "--images", metavar="DIR", default=None, help="folder of training images (default: the renders)"
+    )
+    vocabulary.add_argument("--every", type=int, default=1, metavar="N", help="use every Nth image")
+    vocabulary.add_argument("--branching", type=int, default=10, help="children per node of the word tree")
+    vocabulary.add_argument("--levels", type=int, default=4, help="depth of the word tree")
+    vocabulary.add_argument("--seed", type=int, default=0, help="seed of the k-means clustering")
 
 
 MAX_SEED = 2**31 - 1
@@ -436,6 +458,45 @@ def _render(args: argparse.Namespace) -> int:
     return 0
 
 
+def _vocabulary(args: argparse.Namespace) -> int:
+    from hippo_nav._core import HippoNavError
+    from hippo_nav.synthetic import street_views
+    from hippo_nav.view_cells import train_vocabulary
+
+    if args.every < 1:
+        raise HippoNavError(f"--every {args.every}: give 1 or more")
+    if args.images is None:
+        images: Any = street_views()
+    else:
+        folder = Path(args.images)
+        if not folder.is_dir():
+            raise HippoNavError(f"--images {folder}: not a folder")
+        suffixes = {".png", ".jpg", ".jpeg"}
+        paths = sorted(p for p in folder.iterdir() if p.suffix.lower() in suffixes)[:: args.every]
+        if not paths:
+            raise HippoNavError(f"--images {folder}: no PNG or JPEG images there")
+        images = (_read_gray(p) for p in paths)
+    vocabulary = train_vocabulary(images, branching=args.branching, levels=args.levels, seed=args.seed)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    vocabulary.save(out)
+    print(
+        f"wrote {out}: {len(vocabulary)} words (branching {vocabulary.branching}, {vocabulary.levels} levels)"
+    )
+    return 0
+
+
+def _read_gray(path: Path) -> Any:
+    import cv2
+
+    from hippo_nav._core import HippoNavError
+
+    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if image is None:
+        raise HippoNavError(f"{path}: not a readable image; remove it or convert it to PNG")
+    return image
+
+
 def _summary(metrics: dict) -> dict:
     """The headline numbers of a run (metrics.json holds everything)."""
     keys = ["sequence", "note", "frames", "view_cells", "vertices", "loop_closures", "interrupted"]
@@ -463,6 +524,8 @@ def main(argv: list[str] | None = None) -> int:
             return _run(args)
         if args.command == "render":
             return _render(args)
+        if args.command == "vocabulary":
+            return _vocabulary(args)
         if args.command == "figures":
             from hippo_nav.theory.figures import write_all_figures
 

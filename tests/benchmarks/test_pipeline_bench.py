@@ -7,7 +7,8 @@ that both see the same machine load: the pipeline as it was before the speed wor
 config (every stage one after another on one thread, the VO detecting and stereo-matching every corner
 anew, `test_vo_bench.PREVIOUS_VO`). `extra_info` holds both frame rates, their ratio (`speedup` > 1: the
 current pipeline is faster), the time per stage and each stage's share of a frame, and the 10 Hz camera
-period as a ratio (`camera_period_ratio` < 1 means faster than real time). Real KITTI frames (1241×376,
+period as a ratio (`camera_period_ratio` < 1 means faster than real time). The view-cell benchmark takes the
+other view descriptor as its baseline instead. Real KITTI frames (1241×376,
 sequence 06, 51 stereo pairs) when ../shared/data is present, the synthetic demo (320×96) always.
 """
 
@@ -23,11 +24,12 @@ CAMERA_PERIOD_S = 0.1
 OUTPUT = {"figures": False, "save_map": False}
 
 
-def _bench(benchmark, dataset) -> None:
-    current = config_from_dict({"output": OUTPUT})
-    previous = config_from_dict(
-        {"output": OUTPUT, "overlap_front_end": False, "vo": PREVIOUS_VO.model_dump()}
-    )
+PREVIOUS = {"overlap_front_end": False, "vo": PREVIOUS_VO.model_dump()}
+
+
+def _bench(benchmark, dataset, current_sections=None, previous_sections=PREVIOUS) -> None:
+    current = config_from_dict({"output": OUTPUT, **(current_sections or {})})
+    previous = config_from_dict({"output": OUTPUT, **previous_sections})
     timings: dict[str, list[dict]] = {"current": [], "previous": []}
 
     def baseline():
@@ -48,7 +50,7 @@ def _bench(benchmark, dataset) -> None:
     info["share_of_frame"] = best["current"]["share_of_frame"]
     info["per_frame_ms_previous"] = best["previous"]["per_frame_ms"]
     print(
-        f"\n{dataset.name}: {info['frames_per_s']:.1f} frames/s (previous pipeline "
+        f"\n{dataset.name}: {info['frames_per_s']:.1f} frames/s (baseline "
         f"{info['frames_per_s_previous']:.1f}, speed-up {info['speedup']:.2f}×); "
         f"ms per frame: {info['per_frame_ms']}"
     )
@@ -67,3 +69,15 @@ def test_pipeline_real_kitti_06(benchmark, shared_data):
     data = KittiOdometry(shared_data / "kitti_odometry", "06")
     data.name = "KITTI 06 frames 0-50"
     _bench(benchmark, data)
+
+
+@pytest.mark.data
+@pytest.mark.parametrize("view_cells", ["template", "words"])
+def test_pipeline_real_kitti_06_by_view_cells(benchmark, shared_data, view_cells):
+    """The current pipeline with each view descriptor, against the other one in the same rounds (the
+    baseline here is the other descriptor, not the previous pipeline): what the word view cells cost."""
+    benchmark.group = "pipeline by view cells"
+    other = "words" if view_cells == "template" else "template"
+    data = KittiOdometry(shared_data / "kitti_odometry", "06")
+    data.name = f"KITTI 06 frames 0-50, {view_cells} view cells (baseline: {other})"
+    _bench(benchmark, data, {"parts": {"view_cells": view_cells}}, {"parts": {"view_cells": other}})

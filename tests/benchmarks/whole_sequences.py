@@ -5,7 +5,8 @@ resumable), then runs the whole system on it with several odometries and closure
 Markdown table (the source of docs/results.md) plus every run's results folder.
 
     python tests/benchmarks/whole_sequences.py --kitti ../shared/data/kitti_odometry \\
-        --renders runs/renders --out runs/whole [--sequences 00 05] [--variants vo drift orb]
+        --renders runs/renders --out runs/whole [--sequences 00 05] [--variants vo drift orb] \\
+        [--config '{"parts": {"view_cells": "template"}}']
 
 Variants (each a run of `hippo_nav.pipeline.Pipeline` on the render):
 - `vo`: the built-in stereo VO; geometric loop closure (the default config).
@@ -89,7 +90,7 @@ def run_one(sequence: str, variant: str, args: argparse.Namespace) -> dict:
         if not metrics.get("interrupted"):  # a run stopped early (Ctrl-C, SIGTERM) is run again
             return metrics
     odometry, _ = odometry_for(variant, sequence, args.renders, args.kitti, args.out)
-    config = {"output": {"figures": variant == "vo"}}
+    config = {**args.config, "output": {"figures": variant == "vo"}}
     if variant.endswith("-ratslam"):
         config.update(RATSLAM)
     started = time.perf_counter()
@@ -135,6 +136,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sequences", nargs="+", default=["00", "02", "05", "06", "08"])
     parser.add_argument("--variants", nargs="+", default=["vo", "drift", "orb", "vo-ratslam", "orb-ratslam"])
     parser.add_argument("--again", action="store_true", help="rerun even where metrics.json exists")
+    parser.add_argument(
+        "--config",
+        type=json.loads,
+        default={},
+        metavar="JSON",
+        help='config sections every run starts from, e.g. \'{"parts": {"view_cells": "template"}}\'',
+    )
     args = parser.parse_args(argv)
     from hippo_nav.synthetic import render_kitti
 

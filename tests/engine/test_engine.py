@@ -360,3 +360,28 @@ def test_compact_view_codes_round_trip_lesions_and_heading_offset():
         CompactView.from_patterns(ViewPatterns(np.full(128, np.nan), [None] * N_MODULES), [1, 2, 4])
     with pytest.raises(hippo_nav.HippoNavError, match="module index 3"):
         view.grid_layer2(3)
+
+
+def test_a_recalled_view_shifted_by_a_displacement_is_the_state_there():
+    """Store a view, drive 16 m straight on: the stored view's bumps shifted by 2π·d/P (d the displacement
+    in the engine frame, P the torus period) sit where the driven network's bumps are, in every module —
+    the shift `placement = "measured"` applies to a recalled state (docs/spec.md §3)."""
+    sm = _driven(3)
+    before, start = CompactView.from_engine(sm), sm.readout()
+    for _ in range(20):
+        sm.step(0.0, 8.0, 0.1)
+    after, end = CompactView.from_engine(sm), sm.readout()
+    d = np.subtract(end.place_position_m, start.place_position_m)
+    heading = start.heading_rad
+    assert np.linalg.norm(d) == pytest.approx(16.0, rel=0.03)
+    assert math.atan2(d[1], d[0]) == pytest.approx(heading, abs=0.02)  # along the heading code
+    shift = tuple(2 * math.pi * d / sm.config.torus_period_m)
+    for m, code in enumerate(after.modules):
+        assert code is not None
+        moved = before.grid_layer2(m, shift)
+        unmoved = before.grid_layer2(m)
+        target = after.grid_layer2(m)
+        assert moved is not None and unmoved is not None and target is not None
+        # The shifted pattern matches the driven one; the unshifted one is a bump elsewhere.
+        assert np.corrcoef(moved.ravel(), target.ravel())[0, 1] > 0.97, code.k
+        assert np.corrcoef(unmoved.ravel(), target.ravel())[0, 1] < 0.8, code.k

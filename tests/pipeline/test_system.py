@@ -111,7 +111,7 @@ def test_a_closure_proposer_plugs_in_and_the_map_only_closes_what_is_proposed(de
 
 def test_an_unknown_part_is_refused_naming_the_choices():
     with pytest.raises(
-        HippoNavError, match=r"parts\.view_cells: .*unknown 'orb'; choose from template \(got 'orb'\)"
+        HippoNavError, match=r"parts\.view_cells: .*unknown 'orb'; choose from template, words \(got 'orb'\)"
     ):
         config_from_dict({"parts": {"view_cells": "orb"}})
 

@@ -3,7 +3,10 @@
 //! as JSON of the core crates' `Params` structs (whose `Default` is the single source of defaults), and
 //! the reports that read like dicts.
 use crate::errors::{to_py_err, HippoNavError};
-use numpy::{IntoPyArray, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArrayMethods};
+use numpy::{
+    IntoPyArray, PyArrayDyn, PyArrayMethods, PyReadonlyArray1, PyReadonlyArrayDyn,
+    PyUntypedArrayMethods,
+};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use serde::{de::DeserializeOwned, Serialize};
@@ -58,6 +61,60 @@ fn finite(name: &str, v: Vec<f64>) -> PyResult<Vec<f64>> {
         ))),
         None => Ok(v),
     }
+}
+
+/// Candidate cell ids as given: a 1-D integer array (int64, int32, uint64) of any layout, or any sequence
+/// of ints.
+#[derive(FromPyObject)]
+pub enum CandidatesArg<'py> {
+    I64(PyReadonlyArray1<'py, i64>),
+    I32(PyReadonlyArray1<'py, i32>),
+    U64(PyReadonlyArray1<'py, u64>),
+    Seq(Vec<i64>),
+}
+
+/// Candidate ids as `usize`; a negative id is refused here (the core checks the upper end).
+pub fn candidate_ids(c: &CandidatesArg<'_>) -> PyResult<Vec<usize>> {
+    let signed = |v: &mut dyn Iterator<Item = i64>| -> PyResult<Vec<usize>> {
+        v.enumerate()
+            .map(|(position, id)| {
+                usize::try_from(id).map_err(|_| {
+                    HippoNavError::new_err(format!(
+                        "candidate {position} is {id}: view-cell ids are ≥ 0"
+                    ))
+                })
+            })
+            .collect()
+    };
+    match c {
+        CandidatesArg::I64(a) => signed(&mut a.as_array().iter().copied()),
+        CandidatesArg::I32(a) => signed(&mut a.as_array().iter().map(|&v| i64::from(v))),
+        CandidatesArg::U64(a) => Ok(a
+            .as_array()
+            .iter()
+            .map(|&v| usize::try_from(v).unwrap_or(usize::MAX))
+            .collect()),
+        CandidatesArg::Seq(v) => signed(&mut v.iter().copied()),
+    }
+}
+
+/// An any-layout uint8 array of shape `(n, cols…)` (n free) into `n` and its row-major bytes.
+pub fn rows_u8(
+    name: &str,
+    a: &PyReadonlyArrayDyn<'_, u8>,
+    cols: &[usize],
+) -> PyResult<(usize, Vec<u8>)> {
+    let shape = a.shape();
+    if shape.len() != cols.len() + 1 || shape[1..] != *cols {
+        return Err(HippoNavError::new_err(format!(
+            "`{name}` has shape {shape:?}, expected (n, {}) uint8",
+            cols.iter()
+                .map(|c| c.to_string())
+                .collect::<Vec<_>>()
+                .join(", ")
+        )));
+    }
+    Ok((shape[0], a.as_array().iter().copied().collect()))
 }
 
 /// A row-major vector as a numpy array of `shape` (moved, not copied).

@@ -8,6 +8,7 @@ mod convert;
 mod errors;
 mod map;
 mod views;
+mod words;
 
 /// The default parameters of a core as JSON: `section` "engine" (`SpatialMemoryParams`), "map"
 /// (`MapParams`) or "views" (`ViewCellParams`). The Rust `Default`s are the single source of every
@@ -32,5 +33,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     attractor::register(m)?;
     map::register(m)?;
     views::register(m)?;
+    words::register(m)?;
     Ok(())
 }

@@ -3,12 +3,10 @@
 //! Templates cross as (height, width) float arrays of any layout (float32 or float64; copied once into a
 //! contiguous float32 buffer). Parameters cross as JSON of `ViewCellParams` (the Rust defaults are the
 //! single source). Searches run with the interpreter released.
-use crate::convert::{params_from_json, params_to_json, to_numpy};
+use crate::convert::{candidate_ids, params_from_json, params_to_json, to_numpy, CandidatesArg};
 use crate::errors::{to_py_err, HippoNavError};
 use hippo_views::{ViewCellParams, ViewCells, ViewObservation, ViewStatus};
-use numpy::{
-    IntoPyArray, PyArray1, PyArrayDyn, PyReadonlyArray1, PyReadonlyArrayDyn, PyUntypedArrayMethods,
-};
+use numpy::{IntoPyArray, PyArray1, PyArrayDyn, PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 
 /// A template array as given: float32 or float64.
@@ -35,41 +33,6 @@ fn template_vec(t: &TemplateArg<'_>, p: &ViewCellParams) -> PyResult<Vec<f32>> {
         TemplateArg::F32(a) => a.as_array().iter().copied().collect(),
         TemplateArg::F64(a) => a.as_array().iter().map(|&v| v as f32).collect(),
     })
-}
-
-/// Candidate cell ids as given: a 1-D integer array (int64, int32, uint64) of any layout, or any sequence
-/// of ints.
-#[derive(FromPyObject)]
-enum CandidatesArg<'py> {
-    I64(PyReadonlyArray1<'py, i64>),
-    I32(PyReadonlyArray1<'py, i32>),
-    U64(PyReadonlyArray1<'py, u64>),
-    Seq(Vec<i64>),
-}
-
-/// Candidate ids as `usize`; a negative id is refused here (the core checks the upper end).
-fn candidate_ids(c: &CandidatesArg<'_>) -> PyResult<Vec<usize>> {
-    let signed = |v: &mut dyn Iterator<Item = i64>| -> PyResult<Vec<usize>> {
-        v.enumerate()
-            .map(|(position, id)| {
-                usize::try_from(id).map_err(|_| {
-                    HippoNavError::new_err(format!(
-                        "candidate {position} is {id}: view-cell ids are ≥ 0"
-                    ))
-                })
-            })
-            .collect()
-    };
-    match c {
-        CandidatesArg::I64(a) => signed(&mut a.as_array().iter().copied()),
-        CandidatesArg::I32(a) => signed(&mut a.as_array().iter().map(|&v| i64::from(v))),
-        CandidatesArg::U64(a) => Ok(a
-            .as_array()
-            .iter()
-            .map(|&v| usize::try_from(v).unwrap_or(usize::MAX))
-            .collect()),
-        CandidatesArg::Seq(v) => signed(&mut v.iter().copied()),
-    }
 }
 
 /// What one observation did (see `hippo_views::ViewObservation`).

@@ -62,4 +62,15 @@ pub enum ViewError {
         /// How many cells there are.
         count: usize,
     },
+    #[error(
+        "no training descriptors: a vocabulary needs the ORB descriptors of at least one image"
+    )]
+    /// `Vocabulary::train` was given no descriptors at all.
+    NoTrainingData,
+    #[error("vocabulary file is unusable: {why}")]
+    /// A vocabulary file failed a check (header, length, checksum or tree structure).
+    BadVocabulary {
+        /// Which check, and what was found.
+        why: String,
+    },
 }

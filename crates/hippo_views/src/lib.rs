@@ -21,6 +21,7 @@ mod cells;
 pub mod compare;
 mod error;
 mod params;
+pub mod words;
 
 pub use cells::{ViewCells, ViewMatch, ViewObservation, ViewStatus};
 pub use error::ViewError;

@@ -49,9 +49,22 @@ class ClosureConfig(BaseModel):
     sigma_floor_xy_m: float = Field(0.05, gt=0.0, description="least position uncertainty of a loop link")
     sigma_floor_yaw_rad: float = Field(0.005, gt=0.0, description="least heading uncertainty of a loop link")
     covariance_inflation: float = Field(
-        4.0, ge=1.0, description="factor on the PnP covariance (it ignores feature and depth errors)"
+        4.0, ge=1.0, description="factor on the measured pose's covariance (for errors the model leaves out)"
+    )
+    pixel_sigma_px: float = Field(
+        0.7, gt=0.0, le=10.0, description="standard deviation of an ORB corner's position (px)"
+    )
+    disparity_sigma_px: float = Field(
+        0.3, gt=0.0, le=10.0, description="standard deviation of a stereo disparity (px)"
     )
     candidates_per_frame: int = Field(2, ge=1, description="candidate vertices measured per frame at most")
+    anchor_neighbours: int = Field(
+        1,
+        ge=0,
+        le=20,
+        description="vertices on either side of a familiar view's anchor vertex that may be measured (the "
+        "nearest `candidates_per_frame` by the odometry's prediction are)",
+    )
     closure_spacing_m: float = Field(
         3.0, ge=0.0, description="travel (m) between accepted closures; closer ones add little"
     )
@@ -84,8 +97,19 @@ def _empty_keyframe() -> Keyframe:
 class KeyframeExtractor:
     """`KeyframeExtractor(calibration, config)(left, right) -> Keyframe` for a rectified stereo pair."""
 
-    def __init__(self, calibration, config: ClosureConfig | None = None) -> None:
+    def __init__(
+        self, calibration, config: ClosureConfig | None = None, disparity_offset_px: float = 0.0
+    ) -> None:
         self.config = config or ClosureConfig()
+        # The rig's disparity correction (the VO's `disparity_offset_px`): a keyframe's depths come from the
+        # same stereo pair as the odometry's, so a biased pair must be corrected here too, or every loop
+        # link is measured at the wrong scale (KITTI 01 as given: 15 % long, docs/vo.md).
+        if not np.isfinite(disparity_offset_px) or abs(disparity_offset_px) > 16.0:
+            raise HippoNavError(
+                f"disparity_offset_px = {disparity_offset_px}: a stereo correction of more than 16 px is not "
+                "a correction; check the calibration's baseline and rectification instead"
+            )
+        self.disparity_offset_px = float(disparity_offset_px)
         self.calibration = calibration
         self.fx, self.fy = float(calibration.fx), float(calibration.fy)
         self.cx, self.cy = float(calibration.cx), float(calibration.cy)
@@ -122,13 +146,13 @@ class KeyframeExtractor:
         pixels = np.array([k.pt for k in keypoints], dtype=np.float32)
         response = np.array([k.response for k in keypoints], dtype=np.float32)
         guess = pixels.copy()
-        guess[:, 0] -= self.fx * self.baseline_m / cfg.stereo_guess_depth_m
+        guess[:, 0] -= self.fx * self.baseline_m / cfg.stereo_guess_depth_m - self.disparity_offset_px
         flags = cv2.OPTFLOW_USE_INITIAL_FLOW
         in_right, ok, _ = cv2.calcOpticalFlowPyrLK(left, right, pixels, guess, flags=flags, **self._klt)
         back, ok_back, _ = cv2.calcOpticalFlowPyrLK(
             right, left, in_right, pixels.copy(), flags=flags, **self._klt
         )
-        disparity = pixels[:, 0] - in_right[:, 0]
+        disparity = pixels[:, 0] - in_right[:, 0] + self.disparity_offset_px
         keep = (
             (ok.ravel() == 1)
             & (ok_back.ravel() == 1)

@@ -12,7 +12,8 @@ proposer keep what a later closure onto a new vertex needs (a keyframe, a submap
 `stored_bytes`) is reported in `metrics.json` (`keyframes`, `keyframe_bytes`).
 
 The built-in proposer, `ViewCellPnpClosure`: a familiar view suggests a place the map knows; the
-candidates are the vertex where that view cell was first seen and its odometry neighbours, kept by the map
+candidates are the vertex where that view cell was first seen and its `anchor_neighbours` odometry
+neighbours on either side, kept by the map
 when far enough back along the path and inside its loop gate (`ExperienceMap.loop_candidates`); the current
 stereo frame measures the nearest `candidates_per_frame` against their stored keyframes (ORB + PnP,
 `LoopMeasurer`) and the first verified one is proposed, at most one accepted closure per
@@ -100,9 +101,15 @@ class ViewCellPnpClosure:
     """Closures proposed by familiar view cells, measured by stereo PnP against the keyframe of the vertex
     where the view was first seen (module doc). `keyframes`: vertex → its stereo keyframe."""
 
-    def __init__(self, calibration: StereoCalibration, config: ClosureConfig | None = None) -> None:
+    def __init__(
+        self,
+        calibration: StereoCalibration,
+        config: ClosureConfig | None = None,
+        *,
+        disparity_offset_px: float = 0.0,
+    ) -> None:
         self.config = config or ClosureConfig()
-        self.extract = KeyframeExtractor(calibration, self.config)
+        self.extract = KeyframeExtractor(calibration, self.config, disparity_offset_px)
         self.measurer = LoopMeasurer(calibration, self.config)
         self.keyframes: dict[int, Keyframe] = {}
         # Keyframes still being extracted (vertex → future); see `after_map`.
@@ -129,7 +136,8 @@ class ViewCellPnpClosure:
         anchor = context.anchor_vertex
         if anchor is None:
             return NO_ATTEMPT
-        nearby = [v for v in (anchor - 1, anchor, anchor + 1) if 0 <= v < len(experience_map)]
+        reach = cfg.anchor_neighbours
+        nearby = [v for v in range(anchor - reach, anchor + reach + 1) if 0 <= v < len(experience_map)]
         candidates = experience_map.loop_candidates(nearby, context.planar_step)
         if not candidates:
             return ClosureAttempt(None, "no_candidate")

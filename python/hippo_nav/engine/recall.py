@@ -222,21 +222,30 @@ class CompactView:
         shape = _hd_shape(self._hd_n_theta, code.heading_rad + heading_offset_rad, code.width_rad)
         return code.baseline + code.amplitude * shape
 
-    def grid_layer2(self, module: int) -> np.ndarray | None:
-        """Module `module`'s layer-II pattern (N, N) = (θy, θx), float64; None if it stores nothing."""
+    def grid_layer2(self, module: int, shift_rad: tuple[float, float] = (0.0, 0.0)) -> np.ndarray | None:
+        """Module `module`'s layer-II pattern (N, N) = (θy, θx), float64; None if it stores nothing.
+        `shift_rad` moves the bump along (θx, θy): every module's bumps move alike on the shared torus, by
+        `2π·d/torus_period_m` for a displacement d in the engine's frame (docs/spec.md §3)."""
         if not 0 <= module < len(self._ks):
             raise HippoNavError(f"module index {module} out of range (there are {len(self._ks)})")
         code = self.modules[module]
         if code is None:
             return None
-        shape = _grid_shape(self._grid_n_theta, code.k, code.phase_rad, code.width_rad)
+        phase = (code.phase_rad[0] + shift_rad[0], code.phase_rad[1] + shift_rad[1])
+        shape = _grid_shape(self._grid_n_theta, code.k, phase, code.width_rad)
         return code.baseline + code.amplitude * shape
 
-    def patterns(self, strength: float = 1.0, heading_offset_rad: float = 0.0) -> ViewPatterns:
-        """The patterns to inject, at `strength` (see `hd_profile` for `heading_offset_rad`)."""
+    def patterns(
+        self,
+        strength: float = 1.0,
+        heading_offset_rad: float = 0.0,
+        shift_rad: tuple[float, float] = (0.0, 0.0),
+    ) -> ViewPatterns:
+        """The patterns to inject, at `strength` (see `hd_profile` for `heading_offset_rad`, `grid_layer2`
+        for `shift_rad`)."""
         return ViewPatterns(
             hd_profile=self.hd_profile(heading_offset_rad),
-            grid_layer2=[self.grid_layer2(i) for i in range(len(self._ks))],
+            grid_layer2=[self.grid_layer2(i, shift_rad) for i in range(len(self._ks))],
             strength=float(strength),
         )
 

@@ -3,7 +3,7 @@
 | plug point | config | protocol | built-in |
 |---|---|---|---|
 | odometry | `parts.odometry` | `pipeline.frontend.Odometry` | `"stereo"`: `hippo_nav.vo.StereoOdometry` (`vo` section) |
-| view cells | `parts.view_cells` | `view_cells.ViewDescriptor` | `"template"`: `TemplateViewCells` (`views` section) |
+| view cells | `parts.view_cells` | `view_cells.ViewDescriptor` | `"template"`: `TemplateViewCells` (`views` section); `"words"`: `WordViewCells` (`view_words` section) |
 | loop closure | `parts.closure` | `closure.ClosureProposer` | `"view_cell_pnp"`: `ViewCellPnpClosure` (`closure` section) |
 
 Each registry maps a name to a factory `(config, calibration) -> part`; adding an implementation is one
@@ -22,7 +22,7 @@ from hippo_nav._core import HippoNavError
 from hippo_nav.closure import ClosureProposer, ViewCellPnpClosure
 from hippo_nav.datasets.base import StereoCalibration
 from hippo_nav.map import ClosureMode
-from hippo_nav.view_cells import TemplateViewCells, ViewDescriptor
+from hippo_nav.view_cells import TemplateViewCells, ViewDescriptor, WordViewCells
 from hippo_nav.vo import StereoOdometry
 
 if TYPE_CHECKING:
@@ -37,9 +37,13 @@ ODOMETRIES: dict[str, Factory[Odometry]] = {
 }
 VIEW_CELLS: dict[str, Factory[ViewDescriptor]] = {
     "template": lambda config, calibration: TemplateViewCells.for_camera(config.views, calibration),
+    "words": lambda config, calibration: WordViewCells.for_camera(config.view_words, calibration),
 }
 CLOSURE_PROPOSERS: dict[str, Factory[ClosureProposer]] = {
-    "view_cell_pnp": lambda config, calibration: ViewCellPnpClosure(calibration, config.closure),
+    # The keyframes' depths come from the same stereo pair as the odometry's: its correction applies.
+    "view_cell_pnp": lambda config, calibration: ViewCellPnpClosure(
+        calibration, config.closure, disparity_offset_px=config.vo.disparity_offset_px
+    ),
 }
 REGISTRIES: dict[str, dict[str, Factory]] = {
     "odometry": ODOMETRIES,

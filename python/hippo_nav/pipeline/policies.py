@@ -12,6 +12,7 @@ front end's `OdometryGuard`.)
 
 from __future__ import annotations
 
+import bisect
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -21,6 +22,7 @@ import numpy as np
 
 from hippo_nav._core import HippoNavError
 from hippo_nav.engine import CompactView, SpatialMemory, SpatialReadout, ViewPatterns
+from hippo_nav.geometry import se2_between, se2_compose
 from hippo_nav.map import ExperienceMap
 from hippo_nav.pipeline.config import InjectionConfig, MotionLimits, ViewSearchConfig
 from hippo_nav.view_cells import ViewDescriptor, ViewObservation
@@ -40,18 +42,26 @@ class ViewRecall:
     """
 
     def __init__(
-        self, descriptor: ViewDescriptor, search: ViewSearchConfig, injection: InjectionConfig
+        self,
+        descriptor: ViewDescriptor,
+        search: ViewSearchConfig,
+        injection: InjectionConfig,
+        torus_period_m: float = 100.0,
     ) -> None:
         self.descriptor = descriptor
+        self.torus_period_m = float(torus_period_m)
         self.search = search
         self.injection_config = injection
         self.stored: dict[int, CompactView] = {}  # view cell -> the network state recalled on revisits
         self._cell_vertex: dict[int, int] = {}  # view cell -> the vertex the agent was at when it was made
+        # view cell -> where it was made, seen from that vertex (planar forward, left, yaw)
+        self._cell_offset: dict[int, tuple[float, float, float]] = {}
         self._vertex_cells: dict[int, list[int]] = {}  # the inverse
         self.active_cell: int | None = None
         self._active_run = 0  # frames the active cell has stayed active, after the first
         self._last_active: dict[int, int] = {}  # view cell -> run position it was last active at
         self._activation_gap: int | None = None  # frames between the active cell's last two activations
+        self._made_at_m: list[float] = []  # view cell -> the map's odometer when it was made (non-decreasing)
 
     def __len__(self) -> int:
         return len(self.descriptor)
@@ -78,7 +88,13 @@ class ViewRecall:
         self, description: Any, planar_step: Sequence[float], experience_map: ExperienceMap, position: int
     ) -> ViewObservation:
         """Match this frame (run position `position`) and track which cell is active."""
-        obs = self.descriptor.observe(description, self.candidates(planar_step, experience_map))
+        odometer_m = experience_map.odometer_m + float(np.hypot(planar_step[0], planar_step[1]))
+        # The passage the agent is on: the cells made within the last `passage_m` of travel.
+        first_recent = bisect.bisect_left(self._made_at_m, odometer_m - self.search.passage_m)
+        recent = list(range(first_recent, len(self._made_at_m)))
+        obs = self.descriptor.observe(description, self.candidates(planar_step, experience_map), recent)
+        if obs.is_new and obs.cell_id is not None and int(obs.cell_id) == len(self._made_at_m):
+            self._made_at_m.append(odometer_m)
         if obs.cell_id is not None:
             cell = int(obs.cell_id)
             if cell == self.active_cell:
@@ -91,24 +107,95 @@ class ViewRecall:
             self.active_cell = cell
         return obs
 
-    def injection(self, obs: ViewObservation) -> tuple[ViewPatterns | None, float]:
-        """The stored patterns of a familiar view, scaled by the decaying strength (docs/model.md)."""
+    def injection(
+        self,
+        obs: ViewObservation,
+        measured: tuple[int, tuple[float, float, float]] | None = None,
+        experience_map: ExperienceMap | None = None,
+    ) -> tuple[ViewPatterns | None, float]:
+        """The stored patterns of a familiar view, scaled by the decaying strength (docs/model.md), placed
+        as `InjectionConfig.placement` says. `measured`: this frame's measured loop closure (target vertex,
+        agent_from_target), if any."""
         cfg = self.injection_config
-        if not cfg.enabled or obs.is_new or obs.cell_id is None:
+        if not cfg.enabled:
             return None, 0.0
-        stored = self.stored.get(int(obs.cell_id))
-        # Only a revisit injects: a cell seen again within `revisit_gap_frames` belongs to the passage the
-        # agent is still on, and its (older) stored state would drag path integration backwards.
-        gap = self._activation_gap
-        if stored is None or gap is None or gap <= cfg.revisit_gap_frames:
+        if cfg.placement == "measured":
+            return self._injection_measured(obs, measured, experience_map)
+        if not self._revisit(obs):
             return None, 0.0
         strength = cfg.initial_strength * cfg.decay_per_frame**self._active_run
-        if strength < cfg.min_strength or strength == 0.0:
-            return None, 0.0
         # The stored heading is where the camera faced when the view was stored; now it faces
         # `relative_heading_rad` further (counter-clockwise), so the recalled heading turns with it.
-        offset = float(obs.relative_heading_rad) if cfg.shift_heading else 0.0
-        return stored.patterns(strength=strength, heading_offset_rad=offset), strength
+        return self._recalled(int(obs.cell_id), strength, float(obs.relative_heading_rad))  # type: ignore[arg-type]
+
+    def _revisit(self, obs: ViewObservation) -> bool:
+        """Whether this frame's view is a familiar cell with a stored state, seen again after a gap. Only a
+        revisit recalls: a cell seen again within `revisit_gap_frames` belongs to the passage the agent is
+        still on, and its (older) stored state would drag path integration backwards."""
+        if obs.is_new or obs.status != "familiar" or obs.cell_id is None:
+            return False
+        gap = self._activation_gap
+        return (
+            int(obs.cell_id) in self.stored
+            and gap is not None
+            and gap > self.injection_config.revisit_gap_frames
+        )
+
+    def _injection_measured(
+        self,
+        obs: ViewObservation,
+        measured: tuple[int, tuple[float, float, float]] | None,
+        experience_map: ExperienceMap | None,
+    ) -> tuple[ViewPatterns | None, float]:
+        """`measured` placement: recall the familiar cell's state moved to where the measured closure puts
+        the agent relative to where the cell was made."""
+        if measured is None or experience_map is None or not self._revisit(obs):
+            return None, 0.0
+        cell = int(obs.cell_id)  # type: ignore[arg-type]
+        anchor, offset = self._cell_vertex.get(cell), self._cell_offset.get(cell)
+        if anchor is None or offset is None:
+            return None, 0.0
+        target, agent_from_target = measured
+        world_from_agent = se2_compose(
+            np.array(experience_map.vertex_pose(target)),
+            se2_between(np.array(agent_from_target), np.zeros(3)),
+        )
+        world_from_made = se2_compose(np.array(experience_map.vertex_pose(anchor)), np.array(offset))
+        forward_m, left_m, yaw_rad = (float(v) for v in se2_between(world_from_made, world_from_agent))
+        if np.hypot(forward_m, left_m) > self.injection_config.max_placement_m:
+            return None, 0.0
+        stored = self.stored.get(cell)
+        if stored is None:
+            return None, 0.0
+        # The stored heading code ψ is the engine-frame direction the agent faced when the view was made: a
+        # displacement (forward, left) from there is ψ-rotated into the engine frame, and moves every
+        # module's bumps by 2π·d/P on the shared torus.
+        psi = stored.hd.heading_rad
+        dx = np.cos(psi) * forward_m - np.sin(psi) * left_m
+        dy = np.sin(psi) * forward_m + np.cos(psi) * left_m
+        scale = 2.0 * np.pi / self.torus_period_m
+        strength = (
+            self.injection_config.initial_strength * self.injection_config.decay_per_frame**self._active_run
+        )
+        return self._recalled(cell, strength, yaw_rad, (scale * dx, scale * dy), always_shift=True)
+
+    def _recalled(
+        self,
+        cell: int,
+        strength: float,
+        relative_heading_rad: float,
+        shift_rad: tuple[float, float] = (0.0, 0.0),
+        always_shift: bool = False,
+    ) -> tuple[ViewPatterns | None, float]:
+        """A cell's stored patterns at `strength` (None below `min_strength`), the heading turned by
+        `relative_heading_rad` when `shift_heading` (always for a measured placement), the bumps moved by
+        `shift_rad`."""
+        cfg = self.injection_config
+        stored = self.stored.get(cell)
+        if stored is None or strength < cfg.min_strength or strength == 0.0:
+            return None, 0.0
+        offset = relative_heading_rad if (cfg.shift_heading or always_shift) else 0.0
+        return stored.patterns(strength=strength, heading_offset_rad=offset, shift_rad=shift_rad), strength
 
     def remember(self, obs: ViewObservation, engine: SpatialMemory) -> None:
         """After the engine step of the frame that made a new cell: store what the cell recalls, the bumps'
@@ -116,10 +203,18 @@ class ViewRecall:
         if obs.is_new and obs.cell_id is not None:
             self.stored[int(obs.cell_id)] = CompactView.from_engine(engine)
 
-    def anchor(self, obs: ViewObservation, vertex: int | None) -> None:
-        """After the map took the frame that made a new cell: the vertex the agent is at."""
+    def anchor(
+        self,
+        obs: ViewObservation,
+        vertex: int | None,
+        vertex_from_agent: tuple[float, float, float] | None = None,
+    ) -> None:
+        """After the map took the frame that made a new cell: the vertex the agent is at, and where the
+        agent is seen from it."""
         if obs.is_new and obs.cell_id is not None and vertex is not None:
             self._cell_vertex[int(obs.cell_id)] = int(vertex)
+            if vertex_from_agent is not None:
+                self._cell_offset[int(obs.cell_id)] = tuple(float(v) for v in vertex_from_agent)  # type: ignore[assignment]
             self._vertex_cells.setdefault(int(vertex), []).append(int(obs.cell_id))
 
 

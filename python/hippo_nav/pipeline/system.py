@@ -11,10 +11,12 @@ and writes results. Per frame, in this order (docs/pipeline.md):
    map's steps reproduces the odometry's planar trajectory exactly; `dt` comes from the frame timestamps.
 2. Local view cells (`ViewRecall`): the frame's view is matched against the cells seen near where the
    odometry puts the agent; a familiar cell injects its stored network state with a decaying strength.
-3. Spatial memory (HD ring, three grid modules, place torus) integrates the motion with the injection
+3. Loop closure (the map's geometric mode): the closure proposer (`hippo_nav.closure`) measures a closure
+   to a vertex the map knows, which the map accepts or rejects in step 5. It needs only the view and the
+   map, so it runs before the networks: with `injection.placement = "measured"` the measured pose also
+   places the state a familiar view recalls.
+4. Spatial memory (HD ring, three grid modules, place torus) integrates the motion with the injection
    (`MotionLimiter`: clamped to `config.limits`); a new view cell then stores the network's state.
-4. Loop closure (the map's geometric mode): the closure proposer (`hippo_nav.closure`) measures a closure
-   to a vertex the map knows, which the map accepts or rejects.
 5. Experience map: `on_frame(view cell, place code, heading code, planar step, dt, closure)` creates
    vertices (pure odometry links) and loop links and corrects the map online. Each frame keeps its offset
    from its vertex, so after the final correction every frame gets a corrected pose (vertex ∘ offset).
@@ -104,7 +106,12 @@ class SlamSystem:
             self.initial_heading_rad, (float(initial_phase_rad[0]), float(initial_phase_rad[1]))
         )
         descriptor = view_cells if view_cells is not None else parts.make_view_cells(self.config, calibration)
-        self.view_recall = ViewRecall(descriptor, self.config.view_search, self.config.injection)
+        self.view_recall = ViewRecall(
+            descriptor,
+            self.config.view_search,
+            self.config.injection,
+            torus_period_m=self.config.engine.torus_period_m,
+        )
         self.map = new_experience_map(self.config.map)
         self.closure = (
             closure if closure is not None else parts.make_closure_proposer(self.config, calibration)
@@ -157,15 +164,10 @@ class SlamSystem:
         # 2. Local view cells: which view, and what (if anything) it recalls.
         description = view_description if view_description is not None else self.view_cells.describe(frame)
         obs = self.view_recall.observe(description, planar_step_map, self.map, self.frames)
-        view, strength = self.view_recall.injection(obs)
         timer.lap("views")
 
-        # 3. Spatial memory integrates the motion; a new view cell stores the state it reached.
-        readout, motion = self.limits.drive(self.engine, planar_step_map, dt_s, vo_status, view)
-        self.view_recall.remember(obs, self.engine)
-        timer.lap("engine")
-
-        # 4. Loop closure proposed (and measured) for the map to accept or reject.
+        # 3. Loop closure proposed (and measured) for the map to accept or reject. It needs the view and
+        # the map only, so it runs before the networks: the measured pose can also place the recalled state.
         attempt = NO_ATTEMPT
         if self.closure is not None:
             cell = obs.cell_id
@@ -176,6 +178,16 @@ class SlamSystem:
             )
             attempt = self.closure.propose(ClosureContext(frame, planar_step_map, anchor, self.map))
         timer.lap("closure")
+
+        # 4. Spatial memory integrates the motion, with what a familiar view recalls; a new view cell then
+        # stores the state it reached.
+        measured = None
+        if attempt.closure is not None:
+            measured = (attempt.closure.target_vertex, attempt.closure.agent_from_target)
+        view, strength = self.view_recall.injection(obs, measured, self.map)
+        readout, motion = self.limits.drive(self.engine, planar_step_map, dt_s, vo_status, view)
+        self.view_recall.remember(obs, self.engine)
+        timer.lap("engine")
 
         # 5. Experience map.
         code = self._place_code(readout)
@@ -195,7 +207,7 @@ class SlamSystem:
             note = str(outcome.rejected_closure)
         if self.closure is not None:
             self.closure.after_map(frame, outcome, self.map, worker)
-        self.view_recall.anchor(obs, outcome.vertex)
+        self.view_recall.anchor(obs, outcome.vertex, outcome.vertex_from_agent)
         timer.lap("map")
 
         online_pose, vertex_from_agent = self._online_pose(outcome, step)

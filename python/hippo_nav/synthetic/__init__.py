@@ -20,6 +20,7 @@ from hippo_nav.synthetic.render import (
     render_kitti,
     render_sequence,
     stereo_projections,
+    street_views,
 )
 from hippo_nav.synthetic.trajectories import (
     kitti_trajectory,
@@ -74,5 +75,6 @@ __all__ = [
     "road_trajectory",
     "scale_trajectory",
     "stereo_projections",
+    "street_views",
     "yaw_rotation",
 ]

@@ -10,6 +10,7 @@ i / `frame_rate_hz`; poses/XX.txt the given `world_from_camera` of camera 0.
 from __future__ import annotations
 
 import json
+from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -145,6 +146,27 @@ def render_sequence(
         if bar is not None:
             bar.close()
     return root
+
+
+def street_views(
+    seeds: tuple[int, ...] = (1, 2, 3, 4),
+    frames_per_street: int = 40,
+    image_size_px: tuple[int, int] = (640, 192),
+) -> Iterator[np.ndarray]:
+    """Gray left-camera images of procedural streets, one street per seed, a loop driven through each at
+    3 m per frame (nothing is written). The defaults are the images the shipped word vocabulary was trained
+    on (`hippo-nav vocabulary`, docs/views.md): streets of other shapes and sizes per seed, rectangles from
+    60 × 30 m to 150 × 90 m, at a KITTI-like image size."""
+    from hippo_nav.synthetic.trajectories import loop_trajectory
+
+    p0, _ = stereo_projections(image_size_px, 0.537, KITTI_FOCAL_RATIO)
+    for seed in seeds:
+        rng = np.random.default_rng(seed)
+        sides = (float(rng.uniform(60, 150)), float(rng.uniform(30, 90)))
+        poses = loop_trajectory(frames_per_street, side_lengths_m=sides, speed_m_per_frame=3.0)
+        world = StreetWorld(poses[:, :3, 3], seed=seed)
+        for pose in poses:
+            yield world.render(pose, p0[:, :3], image_size_px)
 
 
 def rendered_params(root: Path, sequence: str) -> dict | None:

@@ -4,6 +4,9 @@
   `NO_VIEW_CELL`.
 - `template.py`: the paper's descriptor, a patch-normalised whole-image template matched with a horizontal
   shift search in Rust (`crates/hippo_views`); the reference choice (`TemplateViewCells`).
+- `words.py`: ORB features quantised into a bag of binary words (Rust, `crates/hippo_views/src/words`),
+  the best-ranked stored views verified by epipolar geometry (OpenCV) (`WordViewCells`); recognises
+  revisits from another lane, at another angle, under other light (docs/views.md).
 
 ```python
 from hippo_nav.datasets import KittiOdometry
@@ -22,6 +25,7 @@ stored network state is kept and recalled: `hippo_nav.engine.recall`.
 
 from hippo_nav.view_cells.base import NO_VIEW_CELL, Observation, ViewDescriptor, ViewObservation, ViewStatus
 from hippo_nav.view_cells.template import TemplateViewCells, TemplateViewConfig, field_of_view_rad
+from hippo_nav.view_cells.words import Vocabulary, WordViewCells, WordViewConfig, train_vocabulary
 
 __all__ = [
     "NO_VIEW_CELL",
@@ -31,5 +35,9 @@ __all__ = [
     "ViewDescriptor",
     "ViewObservation",
     "ViewStatus",
+    "Vocabulary",
+    "WordViewCells",
+    "WordViewConfig",
     "field_of_view_rad",
+    "train_vocabulary",
 ]

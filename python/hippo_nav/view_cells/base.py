@@ -11,7 +11,9 @@ matched view was stored (`relative_heading_rad`, counter-clockwise positive; 0 w
 made), so it may run ahead of the back end on the front end's worker thread: a descriptor says so with
 `describe_on_worker = True` (e.g. ORB features, a few milliseconds a frame). `observe` runs on the back end,
 in frame order, and may store the view; `candidates` restricts the match to those cell ids (the cells seen
-near where the map puts the agent; None: every cell).
+near where the map puts the agent; None: every cell); `recent` names the candidates made on the passage
+the agent is on (`view_search.passage_m`), which a descriptor may treat differently from older ones (a
+revisit is a match to an older cell).
 
 Cell ids are 0, 1, 2, … in the order cells are made. A frame with no cell (before the first informative
 view, or an uninformative one) has `cell_id` None; where an integer column needs a value (`FrameRecord`,
@@ -80,7 +82,12 @@ class ViewDescriptor(Protocol):
 
     def describe(self, frame: StereoFrame) -> Any: ...
 
-    def observe(self, description: Any, candidates: Sequence[int] | None = None) -> ViewObservation: ...
+    def observe(
+        self,
+        description: Any,
+        candidates: Sequence[int] | None = None,
+        recent: Sequence[int] | None = None,
+    ) -> ViewObservation: ...
 
     def __len__(self) -> int: ...
 

@@ -131,12 +131,18 @@ class TemplateViewCells:
         std = np.sqrt(np.maximum(mean_sq - mean * mean, 0.0) + _NOISE_FLOOR_GREY**2)
         return ((small - mean) / std).astype(np.float32)
 
-    def observe(self, template: np.ndarray, candidates: ArrayLike | None = None) -> ViewObservation:
+    def observe(
+        self,
+        template: np.ndarray,
+        candidates: ArrayLike | None = None,
+        recent: ArrayLike | None = None,
+    ) -> ViewObservation:
         """Match a template; a novel one becomes a new cell (status 'new'), a blank one is 'uninformative'.
 
         `candidates` restricts the match to those cell ids (e.g. the cells stored near the current place
         estimate): the view is familiar only if one of them is below the novelty threshold, otherwise it
         becomes a new cell. None matches against every cell. Duplicates are fine; an unknown id raises.
+        `recent` is accepted for the protocol and unused: the paper's template cells treat every cell alike.
         """
         return self._cells.observe(_as_float(template), _as_ids(candidates))
 
