@@ -1,6 +1,7 @@
 """Command line: `hippo-nav run` (the main job: the SLAM pipeline), `hippo-nav render` (a synthetic stereo
-street along a KITTI ground truth), `hippo-nav figures` (the paper's theory figures) and `hippo-nav
-vocabulary` (the word view cells' vocabulary, trained on a folder of images or remade from the renders).
+street along a KITTI ground truth), `hippo-nav figures` (the paper's theory figures, or with --appearance
+the synthetic street at each appearance level) and `hippo-nav vocabulary` (the word view cells' vocabulary,
+trained on a folder of images or remade from the renders).
 
 Exit codes: 0 done; 2 bad input (one line on stderr saying what to fix; nothing is processed) or a frame
 that cannot be read mid-run (the results of the frames before it are written); 130 interrupted by Ctrl-C,
@@ -209,12 +210,16 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
 
 
 def _add_render(sub: argparse._SubParsersAction) -> None:
+    from hippo_nav.synthetic.appearance import APPEARANCE_LEVELS
+
     render = sub.add_parser(
         "render",
         help="render the synthetic stereo street along a KITTI ground truth into a KITTI root",
         description="Renders a synthetic stereo sequence along ROOT/poses/NN.txt with the timestamps of "
         "ROOT/sequences/NN/times.txt into a KITTI root at --out (images, calib.txt, times.txt, poses/NN.txt). "
-        "The camera keeps a fixed height above the road, so every pass sees a street the same way. "
+        "The camera keeps a fixed height above the road; with --appearance same (the default) every pass sees "
+        "a street the same way, with mild or strong a place looks different on each pass (light, shadows, "
+        "shop fronts and posters, parked cars, noise, blur, vignetting, another lane; docs/render.md). "
         "Resumable: frames already written are kept. Run it afterwards with "
         "`hippo-nav run --dataset OUT --sequence NN`.",
         formatter_class=_HelpFormatter,
@@ -231,6 +236,12 @@ def _add_render(sub: argparse._SubParsersAction) -> None:
         help="image size in pixels (default 320x96, KITTI's aspect)",
     )
     render.add_argument("--seed", type=int, default=0, help="texture seed of the synthetic world (default 0)")
+    render.add_argument(
+        "--appearance",
+        choices=list(APPEARANCE_LEVELS),
+        default="same",
+        help="how much a place's look changes between passes (default same: identical on every pass)",
+    )
     render.add_argument("--workers", type=int, default=2, help="rendering threads (default 2)")
     render.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -238,11 +249,18 @@ def _add_render(sub: argparse._SubParsersAction) -> None:
 def _add_figures(sub: argparse._SubParsersAction) -> None:
     figures = sub.add_parser(
         "figures",
-        help="write the paper's theory figures as PNG files",
-        description="Writes the paper's theory figures (the 1-D theory of multi-resolution grid codes) as PNG files.",
+        help="write the paper's theory figures (or the appearance levels of the synthetic street) as PNG files",
+        description="Writes the paper's theory figures (the 1-D theory of multi-resolution grid codes) as PNG "
+        "files; with --appearance, appearance_levels.png instead: one place of the synthetic street at each "
+        "appearance level, on pass 0 and pass 1 (docs/render.md).",
         formatter_class=_HelpFormatter,
     )
     figures.add_argument("--out", default="runs/figures", help="folder for the PNG files")
+    figures.add_argument(
+        "--appearance",
+        action="store_true",
+        help="write appearance_levels.png (the synthetic street at each appearance level) instead",
+    )
 
 
 def _add_vocabulary(sub: argparse._SubParsersAction) -> None:
@@ -450,6 +468,7 @@ def _render(args: argparse.Namespace) -> int:
         args.stop,
         image_size_px=(width, height),
         seed=args.seed,
+        appearance=args.appearance,
         workers=args.workers,
         progress=not args.no_progress,
     )
@@ -527,6 +546,11 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "vocabulary":
             return _vocabulary(args)
         if args.command == "figures":
+            if args.appearance:
+                from hippo_nav.synthetic.figures import appearance_figure
+
+                print(f"wrote {appearance_figure(Path(args.out) / 'appearance_levels.png')}")
+                return 0
             from hippo_nav.theory.figures import write_all_figures
 
             write_all_figures(args.out)

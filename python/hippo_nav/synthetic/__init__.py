@@ -5,7 +5,9 @@ times.txt, poses) that `hippo_nav.datasets.KittiOdometry` reads back. Trajectori
 `loop_trajectory` (a driven loop with a revisit) or `kitti_trajectory` (any KITTI ground-truth file, so
 real loop geometry such as sequences 00, 05, 06, 07 can be rendered). `demo_sequence` is the built-in demo.
 `drifting_odometry(ground_truth)` turns a trajectory into a drifting odometry (scale error, yaw bias, noise),
-e.g. to write a file for `hippo-nav run --odometry`.
+e.g. to write a file for `hippo-nav run --odometry`. `appearance="mild"` or `"strong"` (`APPEARANCE_LEVELS`)
+makes a place look different on every pass (docs/render.md); `revisit_street` drives a street twice with a
+controlled lateral and heading offset.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from hippo_nav.synthetic.appearance import APPEARANCE_LEVELS, AppearanceModel, pass_indices
 from hippo_nav.synthetic.drift import drifting_odometry, yaw_rotation
 from hippo_nav.synthetic.render import (
     KITTI_FOCAL_RATIO,
@@ -23,11 +26,13 @@ from hippo_nav.synthetic.render import (
     street_views,
 )
 from hippo_nav.synthetic.trajectories import (
+    RevisitStreet,
     kitti_trajectory,
     level_trajectory,
     loop_trajectory,
     path_length_m,
     planar_poses,
+    revisit_street,
     road_heights_m,
     road_trajectory,
     scale_trajectory,
@@ -56,9 +61,12 @@ def demo_sequence(out_root: str | Path | None = None, *, progress: bool = False)
 
 
 __all__ = [
+    "APPEARANCE_LEVELS",
     "DEMO_FRAMES",
     "DEMO_SEQUENCE",
     "KITTI_FOCAL_RATIO",
+    "AppearanceModel",
+    "RevisitStreet",
     "StreetWorld",
     "default_cache_dir",
     "demo_sequence",
@@ -66,11 +74,13 @@ __all__ = [
     "kitti_trajectory",
     "level_trajectory",
     "loop_trajectory",
+    "pass_indices",
     "path_length_m",
     "planar_poses",
     "render_cached",
     "render_kitti",
     "render_sequence",
+    "revisit_street",
     "road_heights_m",
     "road_trajectory",
     "scale_trajectory",

@@ -5,6 +5,10 @@ Rig: a rectified pair with K = [[f, 0, cx], [0, f, cy], [0, 0, 1]], f = `focal_r
 the right camera `baseline_m` along camera-0 +x. calib.txt holds P0 = K[I|0], P1 = K[I | (−b, 0, 0)]
 (so P1[0,3] = −f·b), and P2 = P0, P3 = P1 (the synthetic rig has no colour cameras). times.txt is
 i / `frame_rate_hz`; poses/XX.txt the given `world_from_camera` of camera 0.
+
+`appearance` ("same", "mild", "strong"; `synthetic/appearance.py`, docs/render.md) makes a place look different
+on each pass: light, shadows, shop fronts and posters, parked cars, noise, blur, vignetting, and in
+`render_kitti` another lane. "same" renders exactly what this module always rendered.
 """
 
 from __future__ import annotations
@@ -19,6 +23,15 @@ import numpy as np
 
 from hippo_nav.io.errors import DatasetError
 from hippo_nav.io.poses import write_kitti_poses
+from hippo_nav.synthetic.appearance import (
+    AppearanceModel,
+    appearance_level,
+    lane_offsets_m,
+    pass_indices,
+    shift_sideways,
+    shutter_motion,
+    smoothed_passes,
+)
 from hippo_nav.synthetic.world import StreetWorld
 
 KITTI_FOCAL_RATIO = 718.856 / 1241.0
@@ -61,6 +74,9 @@ def render_sequence(
     street_half_width_m: float = 7.0,
     camera_height_m: float = 1.65,
     noise_std: float = 0.0,
+    appearance: str = "same",
+    street_path_m: np.ndarray | None = None,
+    passes: np.ndarray | None = None,
     workers: int = 2,
     progress: bool = False,
 ) -> Path:
@@ -74,6 +90,11 @@ def render_sequence(
     frames; with `keep_existing` frames whose two images exist are not rendered again (resuming).
     `workers` threads render frames in parallel (NumPy releases the GIL in its array loops); the output
     does not depend on it.
+
+    `appearance` ("same", "mild" or "strong") changes the look of a place from one pass to the next
+    (`hippo_nav.synthetic.appearance`); the pass of each frame is `pass_indices` of the camera positions unless
+    `passes` (one per pose) gives it. The street follows the camera path unless `street_path_m` (M, 3) gives
+    the path it is built along (e.g. the first pass of a street driven again in another lane).
     """
     poses = np.asarray(world_from_camera, dtype=np.float64)
     if poses.ndim != 3 or poses.shape[1:] not in ((4, 4), (3, 4)) or len(poses) == 0:
@@ -93,12 +114,17 @@ def render_sequence(
     selected = np.arange(len(poses)) if frames is None else np.asarray(frames, dtype=np.int64).reshape(-1)
     if selected.size and (selected.min() < 0 or selected.max() >= len(poses)):
         raise DatasetError(f"frames to render must lie in [0, {len(poses)})")
+    appearance_level(appearance)  # an unknown level fails here, before anything is written
+    street = poses[:, :3, 3] if street_path_m is None else np.asarray(street_path_m, dtype=np.float64)
+    if street.ndim != 2 or street.shape[1] != 3:
+        raise DatasetError(f"street_path_m must have shape (M, 3), got {street.shape}")
 
     p0, p1 = stereo_projections((width, height), baseline_m, focal_ratio)
     K = p0[:, :3]
     world = StreetWorld(
-        poses[:, :3, 3], street_half_width_m=street_half_width_m, camera_height_m=camera_height_m, seed=seed
+        street, street_half_width_m=street_half_width_m, camera_height_m=camera_height_m, seed=seed
     )
+    model = None if appearance == "same" else AppearanceModel(world, appearance, seed, poses, passes)
     root = Path(out_root)
     sequence_dir = root / "sequences" / sequence
     for camera in ("image_0", "image_1"):
@@ -118,8 +144,18 @@ def render_sequence(
     def render_frame(i: int) -> None:
         # Noise is seeded per frame so the images do not depend on the order threads finish in.
         noise_rng = np.random.default_rng([seed, i])
+        look = None if model is None else model.frame(i)
+        sensor_rng = np.random.default_rng([seed, i, 0xA99])  # the appearance's noise, apart from noise_std's
         for camera, pose in (("image_0", poses[i]), ("image_1", poses[i] @ right_from_left)):
-            image = world.render(pose, K, (width, height))
+            if model is None or look is None:  # "same": the street as it always was
+                image = world.render(pose, K, (width, height))
+            else:
+                motion = shutter_motion(poses, i)
+                if motion is not None:  # the right camera moves with the rig
+                    motion = np.linalg.inv(right_from_left) @ motion @ right_from_left
+                image = model.render(
+                    pose, K, (width, height), look, camera_from_next=motion, noise_rng=sensor_rng
+                )
             if noise_std > 0:
                 noisy = image + noise_rng.normal(0.0, noise_std, image.shape)
                 image = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
@@ -182,8 +218,11 @@ def render_cached(world_from_camera: np.ndarray, out_root: str | Path, sequence:
     """`render_sequence` unless `out_root` already holds this exact rendering (same poses and settings)."""
     poses = np.asarray(world_from_camera, dtype=np.float64)
     root = Path(out_root)
+    # appearance="same" is today's rendering: its stamp stays the one written before appearances existed.
     settings = {
-        k: list(v) if isinstance(v, tuple) else v for k, v in kw.items() if k not in ("progress", "workers")
+        k: list(v) if isinstance(v, tuple) else _digest(v) if isinstance(v, np.ndarray) else v
+        for k, v in kw.items()
+        if k not in ("progress", "workers") and not (k == "appearance" and v == "same")
     }
     params = {"poses_sha": _digest(poses), **settings}
     image_dirs = [root / "sequences" / sequence / cam for cam in ("image_0", "image_1")]
@@ -221,6 +260,7 @@ def render_kitti(
     image_size_px: tuple[int, int] = (320, 96),
     road_smoothing_m: float = 6.0,
     seed: int = 0,
+    appearance: str = "same",
     workers: int = 2,
     progress: bool = False,
 ) -> Path:
@@ -233,6 +273,11 @@ def render_kitti(
     `start`/`stop` render part of the sequence (frame numbers keep their place). Resumable: a render
     stamp (`render.json`) records the settings, and frames already on disk are kept when they match;
     an `out_root` holding a render with other settings is an error, so nothing is overwritten by mistake.
+
+    `appearance` "mild" or "strong" (recorded in the stamp) changes a place's look on every pass
+    (docs/render.md) and drives later passes in another lane: the camera moves sideways (along its x axis) by
+    `lane_offsets_m` of the road path's smoothed pass, over ~40 m of road; the street stays where the road
+    is, and the written poses are those of the cameras rendered, offsets included.
     """
     from hippo_nav.datasets.kitti import read_times
     from hippo_nav.io.poses import read_kitti_poses
@@ -254,7 +299,14 @@ def render_kitti(
     hi = len(ground_truth) if stop is None else int(stop)
     if not 0 <= lo < hi <= len(ground_truth):
         raise DatasetError(f"frame range [{lo}, {hi}) is empty or outside the {len(ground_truth)} frames")
-    poses = road_trajectory(ground_truth, road_smoothing_m)
+    appearance_level(appearance)  # an unknown level fails here, before anything is written
+    road = road_trajectory(ground_truth, road_smoothing_m)
+    poses, passes = road, None
+    if appearance != "same":
+        # Passes follow the road, not the lanes: the street is driven again whichever lane the camera takes.
+        passes = pass_indices(road[:, :3, 3])
+        offsets_m = lane_offsets_m(smoothed_passes(road[:, :3, 3], passes), appearance, seed)
+        poses = shift_sideways(road, offsets_m)
     root = Path(out_root)
     stamp = {
         "source_poses_sha": _digest(ground_truth),
@@ -262,6 +314,8 @@ def render_kitti(
         "road_smoothing_m": float(road_smoothing_m),
         "seed": int(seed),
     }
+    if appearance != "same":  # a "same" stamp is the one written before appearances existed
+        stamp["appearance"] = appearance
     existing = rendered_params(root, sequence)
     if existing is not None and existing != stamp:
         raise DatasetError(
@@ -280,6 +334,9 @@ def render_kitti(
         timestamps_s=times,
         frames=np.arange(lo, hi),
         keep_existing=True,
+        appearance=appearance,
+        street_path_m=None if appearance == "same" else road[:, :3, 3],
+        passes=passes,
         workers=workers,
         progress=progress,
     )

@@ -7,6 +7,7 @@ world (x, z) = (−sin ψ, cos ψ). Height is up, i.e. world y = −height.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -14,6 +15,7 @@ import numpy as np
 from hippo_nav.geometry import planar_from_pose, pose_from_planar
 from hippo_nav.io.errors import DatasetError
 from hippo_nav.io.poses import read_kitti_poses
+from hippo_nav.synthetic.appearance import PASS_RADIUS_M
 
 
 def planar_poses(
@@ -87,6 +89,69 @@ def loop_trajectory(
     left = np.interp(along, arc, y_arr)
     heading = np.interp(along, arc, yaw_arr) + 2 * np.pi * laps
     return planar_poses(forward, left, heading)
+
+
+@dataclass(frozen=True)
+class RevisitStreet:
+    """A straight street driven twice (`revisit_street`). Render it with
+    `render_sequence(s.world_from_camera, out, street_path_m=s.street_path_m, …)` so the street follows the
+    first pass whatever lane the second drives in."""
+
+    world_from_camera: np.ndarray  # (2n, 4, 4): the first pass, then the second
+    street_path_m: np.ndarray  # (n, 3): the street's centre line (the first pass's camera centres)
+    first_pass: np.ndarray  # frame indices of the first pass, 0 … n − 1
+    second_pass: np.ndarray  # frame indices of the second pass, n … 2n − 1
+    revisit_of: (
+        np.ndarray
+    )  # per second-pass frame: the first-pass frame at the nearest place along the street
+
+
+def revisit_street(
+    n_frames: int = 60,
+    *,
+    step_m: float = 1.0,
+    lateral_offset_m: float = 0.0,
+    heading_offset_deg: float = 0.0,
+    along_offset_m: float = 0.0,
+    height_m: float = 0.0,
+) -> RevisitStreet:
+    """A straight street (along the first camera's forward axis) driven twice, `n_frames` frames `step_m`
+    apart each time; the second pass starts again at the street's start (a cut, not a drive back).
+
+    The second pass is `lateral_offset_m` to the left (planar convention: negative is right),
+    `along_offset_m` further along and yawed by `heading_offset_deg` (left positive) relative to the street:
+    a controlled revisit for measuring view recognition against offset and heading change. By `pass_indices`
+    the first pass is pass 0 and the second pass 1 (the street is at least 3 pass radii long).
+    """
+    if n_frames < 2 or not (np.isfinite(step_m) and step_m > 0):
+        raise DatasetError("revisit_street needs n_frames >= 2 and a positive step_m")
+    length_m = (n_frames - 1) * step_m
+    if length_m < 3 * PASS_RADIUS_M:
+        raise DatasetError(
+            f"the street is {length_m:.1f} m long; make it at least {3 * PASS_RADIUS_M:.0f} m "
+            "(more frames or a longer step_m) so that the second pass is a separate visit"
+        )
+    if abs(lateral_offset_m) > 5.0 or abs(heading_offset_deg) > 45.0 or abs(along_offset_m) > length_m:
+        raise DatasetError(
+            "keep |lateral_offset_m| <= 5 m (the camera must stay inside the 7 m half street), "
+            "|heading_offset_deg| <= 45 and |along_offset_m| within the street"
+        )
+    forward = np.arange(n_frames) * step_m
+    first = planar_poses(forward, np.zeros(n_frames), np.zeros(n_frames), height_m)
+    second = planar_poses(
+        forward + along_offset_m,
+        np.full(n_frames, float(lateral_offset_m)),
+        np.full(n_frames, np.radians(heading_offset_deg)),
+        height_m,
+    )
+    revisit_of = np.abs((forward + along_offset_m)[:, None] - forward[None, :]).argmin(1)
+    return RevisitStreet(
+        world_from_camera=np.concatenate([first, second]),
+        street_path_m=first[:, :3, 3].copy(),
+        first_pass=np.arange(n_frames),
+        second_pass=np.arange(n_frames, 2 * n_frames),
+        revisit_of=revisit_of,
+    )
 
 
 def kitti_trajectory(

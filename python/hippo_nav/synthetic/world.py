@@ -7,7 +7,8 @@ within `street_half_width_m` of AB. Free space is the union of the capsules; its
 infinitely tall facades. The ground under each capsule is the plane through A and B shifted down by
 `camera_height_m`, tilted along AB and level across it. Everything is a function of world position only,
 so every pass along a street, from either direction, sees the same facades and the same road: revisits look
-the same, as in a real city.
+the same, as in a real city. (`appearance.py` makes passes differ on purpose — light, shadows, posters, parked
+cars — on top of this street; docs/render.md.)
 
 Ray casting (per pixel, vectorised over pixels × nearby capsules). A ray c + s·D is parametrised by its
 horizontal distance s (D = d / |d_xz|). For capsule k its entry/exit interval [in_k, out_k] is the hull of
@@ -27,6 +28,7 @@ no aliasing or flicker, and features localise to sub-pixel accuracy. All random 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -230,12 +232,14 @@ class StreetWorld:
         along = np.clip((rel * u[bound]).sum(1), 0.0, length[bound])
         outward = rel - along[:, None] * u[bound]
         outward /= np.maximum(np.linalg.norm(outward, axis=1), 1e-9)[:, None]
-        return cap_in, cap_out, s_wall, outward
+        return cap_in, cap_out, s_wall, outward, bound
 
     def cast(
         self, centre_m: np.ndarray, directions: np.ndarray, level_columns: int = 0
     ) -> dict[str, np.ndarray]:
-        """Cast rays from `centre_m` along `directions` (P, 3): hit kind, range, point, surface normal.
+        """Cast rays from `centre_m` along `directions` (P, 3): hit kind (0 sky, 1 ground, 2 facade), range,
+        point, surface normal (pointing away from the street: down for the road, into the building for a
+        facade) and the path segment of the hit.
 
         `level_columns` = W > 0 says the rays are a row-major (H, W) image of a level camera (no roll or
         pitch), so every column shares one horizontal direction and the 2-D part is solved once per
@@ -252,12 +256,12 @@ class StreetWorld:
         if level_columns:
             # One horizontal direction per column: solve the 2-D part per column, index it per ray.
             ray_q = np.tile(np.arange(level_columns), n_rays // level_columns)
-            cap_in, cap_out, s_wall_q, outward_q = self._intervals(
+            cap_in, cap_out, s_wall_q, outward_q, bound_q = self._intervals(
                 near, centre_m, step[:level_columns, [0, 2]]
             )
         else:
             ray_q = np.arange(n_rays)
-            cap_in, cap_out, s_wall_q, outward_q = self._intervals(near, centre_m, step[:, [0, 2]])
+            cap_in, cap_out, s_wall_q, outward_q, bound_q = self._intervals(near, centre_m, step[:, [0, 2]])
         s_wall, outward = s_wall_q[ray_q], outward_q[ray_q]
 
         # The ground: nearest capsule plane crossed inside that capsule and before the facade. Only the
@@ -295,11 +299,25 @@ class StreetWorld:
             "range_m": s_hit * step_norm,
             "points": centre_m + s_hit[:, None] * step,
             "normals": surface_normal,
+            # The path segment whose capsule holds the hit (its road plane, or the facade it bounds).
+            "segment": near[np.where(kind == 1, ground_idx, bound_q[ray_q])],
         }
 
     # ----------------------------------------------------------------------------------- shading
-    def shade(self, hits: dict[str, np.ndarray], directions: np.ndarray, focal_px: float) -> np.ndarray:
-        """Gray level (float, ~0–255) of each ray's hit."""
+    def shade(
+        self,
+        hits: dict[str, np.ndarray],
+        directions: np.ndarray,
+        focal_px: float,
+        surface: Callable[[dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray], np.ndarray]
+        | None = None,
+        sky_gain: float = 1.0,
+    ) -> np.ndarray:
+        """Gray level (float, ~0–255) of each ray's hit.
+
+        `surface(hits, unit_directions, footprint_m, value)` (appearance, `synthetic/appearance.py`) may
+        change the surfaces' gray levels before the fog is laid over them; `sky_gain` scales the sky (and so
+        the fog's colour). Without them the street looks as it always has."""
         kind, points, normals, range_m = hits["kind"], hits["points"], hits["normals"], hits["range_m"]
         unit = directions / np.linalg.norm(directions, axis=1)[:, None]
         cos_incidence = np.maximum(np.abs((unit * normals).sum(1)), 0.08)
@@ -331,19 +349,26 @@ class StreetWorld:
             p, fp, m = points[ground], footprint[ground], mix[ground]
             texture = m * self._ground_fine(p, fp) + (1 - m) * self._ground_coarse(p, fp)
             value[ground] = 110 - 15 * district[ground] + 60 * np.tanh(0.9 * texture)
+        if surface is not None:
+            value = surface(hits, unit, footprint, value)
         # Fog over the last 30 % of the range hides the range cut-off (it would be an edge that moves).
         fog = np.clip((range_m - 0.7 * self.max_range_m) / (0.3 * self.max_range_m), 0.0, 1.0)
         fog = np.where(kind == 0, 1.0, fog * fog * (3 - 2 * fog))
         misty = fog > 0
         if misty.any():
             sky = self._sky(unit[misty], np.full(int(misty.sum()), 1.0 / focal_px))
-            value[misty] = (1 - fog[misty]) * value[misty] + fog[misty] * (170 + 35 * np.tanh(sky))
+            sky_value = 170 + 35 * np.tanh(sky)
+            if sky_gain != 1.0:
+                sky_value = sky_gain * sky_value
+            value[misty] = (1 - fog[misty]) * value[misty] + fog[misty] * sky_value
         return value
 
-    def render(
-        self, world_from_camera: np.ndarray, K: np.ndarray, image_size_px: tuple[int, int]
-    ) -> np.ndarray:
-        """Render one (H, W) uint8 image of a pinhole camera (pixel centres at integer coordinates)."""
+    @staticmethod
+    def rays(
+        world_from_camera: np.ndarray, K: np.ndarray, image_size_px: tuple[int, int]
+    ) -> tuple[np.ndarray, int]:
+        """World directions (H·W, 3) of the pixels of a pinhole camera (pixel centres at integer coordinates,
+        row-major), and `level_columns` for `cast` (the width for a level camera, else 0)."""
         width, height = image_size_px
         u, v = np.meshgrid(np.arange(width, dtype=np.float64), np.arange(height, dtype=np.float64))
         rays_camera = np.stack(
@@ -353,6 +378,14 @@ class StreetWorld:
         directions = rays_camera @ world_from_camera[:3, :3].T
         rotation = world_from_camera[:3, :3]
         level = abs(rotation[1, 0]) < 1e-12 and abs(rotation[1, 2]) < 1e-12 and K[0, 1] == 0
-        hits = self.cast(world_from_camera[:3, 3], directions, level_columns=width if level else 0)
+        return directions, width if level else 0
+
+    def render(
+        self, world_from_camera: np.ndarray, K: np.ndarray, image_size_px: tuple[int, int]
+    ) -> np.ndarray:
+        """Render one (H, W) uint8 image of a pinhole camera (pixel centres at integer coordinates)."""
+        width, height = image_size_px
+        directions, level_columns = self.rays(world_from_camera, K, image_size_px)
+        hits = self.cast(world_from_camera[:3, 3], directions, level_columns=level_columns)
         gray = self.shade(hits, directions, float(K[0, 0]))
         return np.clip(np.rint(gray), 0, 255).astype(np.uint8).reshape(height, width)
