@@ -6,7 +6,7 @@ Markdown table (the source of docs/results.md) plus every run's results folder.
 
     python tests/benchmarks/whole_sequences.py --kitti ../shared/data/kitti_odometry \\
         --renders runs/renders --out runs/whole [--sequences 00 05] [--variants vo drift orb] \\
-        [--config '{"parts": {"view_cells": "template"}}']
+        [--config '{"parts": {"view_cells": "template"}}'] [--appearance strong]
 
 Variants (each a run of `hippo_nav.pipeline.Pipeline` on the render):
 - `vo`: the built-in stereo VO; geometric loop closure (the default config).
@@ -136,6 +136,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sequences", nargs="+", default=["00", "02", "05", "06", "08"])
     parser.add_argument("--variants", nargs="+", default=["vo", "drift", "orb", "vo-ratslam", "orb-ratslam"])
     parser.add_argument("--again", action="store_true", help="rerun even where metrics.json exists")
+    parser.add_argument("--size", default="320x96", metavar="WxH", help="render size (default 320x96)")
+    parser.add_argument(
+        "--appearance",
+        choices=["same", "mild", "strong"],
+        default="same",
+        help="how much a place changes between passes (docs/render.md); use one --renders root per level",
+    )
     parser.add_argument(
         "--config",
         type=json.loads,
@@ -149,7 +156,10 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     rows = []
     for sequence in args.sequences:
-        render_kitti(args.kitti, sequence, args.renders, progress=True)
+        render_kitti(
+            args.kitti, sequence, args.renders, progress=True, appearance=args.appearance,
+            image_size_px=tuple(int(v) for v in args.size.split("x")),
+        )  # fmt: skip
         for variant in args.variants:
             if variant.startswith("orb") and sequence not in ORB_FILES:
                 continue

@@ -40,7 +40,9 @@ def test_events_are_frozen_data_and_read_the_networks_only_when_asked(demo, monk
 
     monkeypatch.setattr(SpatialMemory, "hd_activity", counted)
     keeper = Keeper(read={3})
-    config = config_from_dict({**QUIET, "output": {"figures": False, "state_frames": []}})
+    config = config_from_dict(
+        {**QUIET, "output": {"figures": False, "state_frames": []}, "parts": {"view_cells": "template"}}
+    )
     result = Pipeline(Frames(demo, 8), config, observers=[keeper]).run(None)
     # One frame asked for the networks; the recorder's final snapshot reads them once more.
     assert len(reads) == 2 and len(keeper.networks) == 1

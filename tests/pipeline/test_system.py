@@ -79,7 +79,7 @@ class SilentProposer:
     stored_bytes = 0
 
 
-def test_a_view_descriptor_plugs_in_by_a_class_and_a_config_choice(demo, reference, monkeypatch):
+def test_a_view_descriptor_plugs_in_by_a_class_and_a_config_choice(demo, monkeypatch):
     monkeypatch.setitem(
         parts.VIEW_CELLS,
         "worker_template",
@@ -87,6 +87,8 @@ def test_a_view_descriptor_plugs_in_by_a_class_and_a_config_choice(demo, referen
     )
     config = config_from_dict({**QUIET, "parts": {"view_cells": "worker_template"}})
     result = Pipeline(Frames(demo, N), config).run(None)
+    template = config_from_dict({**QUIET, "overlap_front_end": False, "parts": {"view_cells": "template"}})
+    reference = Pipeline(Frames(demo, N), template).run(None)
     # Described on the front end's worker thread, never on the calling one; the same cells either way.
     assert WorkerDescribedTemplate.threads and threading.get_ident() not in WorkerDescribedTemplate.threads
     assert result.record.column("view_cell") == reference.record.column("view_cell")

@@ -137,7 +137,7 @@ class PartsConfig(_Section):
     template view cells, `view_words` for the word view cells; `closure`)."""
 
     odometry: str = Field("stereo", description="the odometry (`parts.ODOMETRIES`)")
-    view_cells: str = Field("template", description="the view descriptor (`parts.VIEW_CELLS`)")
+    view_cells: str = Field("words", description="the view descriptor (`parts.VIEW_CELLS`)")
     closure: str = Field(
         "view_cell_pnp",
         description="the loop-closure proposer in the map's geometric mode (`parts.CLOSURE_PROPOSERS`)",

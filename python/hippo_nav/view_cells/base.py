@@ -19,8 +19,8 @@ Cell ids are 0, 1, 2, … in the order cells are made. A frame with no cell (bef
 view, or an uninformative one) has `cell_id` None; where an integer column needs a value (`FrameRecord`,
 `frames.csv`) it is `NO_VIEW_CELL`.
 
-The built-in descriptor is the paper's patch-normalised whole-image template (`template.py`); adding one:
-docs/architecture.md.
+The built-in descriptors are the word view cells (`words.py`, the default) and the paper's patch-normalised
+whole-image template (`template.py`); measured side by side in docs/views.md; adding one: docs/architecture.md.
 """
 
 from __future__ import annotations

@@ -324,17 +324,16 @@ class RerunObserver:
         pixels = event.features_px
         if pixels is not None:
             rec.log("camera/left/features", rr.Points2D(pixels + 0.5))
-        rows = event.view_rows
-        if rows is not None:
-            top, bottom = rows
-            colour = (255, 200, 0) if record.view_status == "familiar" else (0, 200, 255)
-            rec.log(
-                "camera/left/view_cell",
-                rr.Boxes2D(
-                    mins=[[0.0, float(top)]], sizes=[[float(left.shape[1]), float(bottom - top)]],
-                    labels=[view_cell_label(record)], colors=[colour],
-                ),
-            )  # fmt: skip
+        # The rows the descriptor looks at (the template's crop), or the whole image (features from all of it).
+        top, bottom = event.view_rows if event.view_rows is not None else (0, left.shape[0])
+        colour = (255, 200, 0) if record.view_status == "familiar" else (0, 200, 255)
+        rec.log(
+            "camera/left/view_cell",
+            rr.Boxes2D(
+                mins=[[0.0, float(top)]], sizes=[[float(left.shape[1]), float(bottom - top)]],
+                labels=[view_cell_label(record)], colors=[colour],
+            ),
+        )  # fmt: skip
 
     def _log_readout(self, record: FrameRecord, readout: SpatialReadout) -> None:
         """Heading; yaw rate and speed as two series each (the odometry's, which the networks integrate, and
