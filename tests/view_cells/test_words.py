@@ -161,6 +161,7 @@ def test_real_streets_without_a_revisit_make_no_claim(shared_data) -> None:
     assert WordViewConfig().min_inliers == cells.config.min_inliers
 
 
+@pytest.mark.slow
 def test_the_shipped_vocabulary_is_the_one_the_code_makes(tmp_path) -> None:
     """Provenance: `hippo-nav vocabulary` without images remakes the shipped file byte for byte (trained on
     the project's own renders; ~30 s)."""
@@ -234,6 +235,7 @@ def _second_pass_claims(cells, describe, images, street) -> list[tuple[int, int 
     return claims
 
 
+@pytest.mark.slow
 def test_a_revisit_in_another_lane_under_other_light_is_recognised() -> None:
     """`strong` appearance change (another sun, shadows, changed shop fronts and cars, noise and blur), the
     second pass 1.5 m to the side and turned 10°: the word cells recall first-pass cells of the right

@@ -28,29 +28,6 @@ pub type WordId = u32;
 /// Bits that differ between two descriptors.
 #[inline]
 pub fn hamming(a: &Descriptor, b: &Descriptor) -> u32 {
-    let mut distance = 0;
-    for i in 0..4 {
-        let x = u64::from_le_bytes([
-            a[8 * i],
-            a[8 * i + 1],
-            a[8 * i + 2],
-            a[8 * i + 3],
-            a[8 * i + 4],
-            a[8 * i + 5],
-            a[8 * i + 6],
-            a[8 * i + 7],
-        ]);
-        let y = u64::from_le_bytes([
-            b[8 * i],
-            b[8 * i + 1],
-            b[8 * i + 2],
-            b[8 * i + 3],
-            b[8 * i + 4],
-            b[8 * i + 5],
-            b[8 * i + 6],
-            b[8 * i + 7],
-        ]);
-        distance += (x ^ y).count_ones();
-    }
-    distance
+    // Byte-wise popcount over the 32 bytes: the plain form, which the compiler can vectorise.
+    a.iter().zip(b).map(|(x, y)| (x ^ y).count_ones()).sum()
 }
