@@ -28,6 +28,7 @@ __all__ = [
     "SolveReport",
     "SpatialReadout",
     "ViewObservation",
+    "_SlidingWindow",
     "_SpatialMemory",
     "_ViewCells",
     "_Vocabulary",
@@ -96,6 +97,33 @@ class BagOfWords:
     def __len__(self) -> int: ...
     def entries(self) -> tuple[npt.NDArray[np.uint32], npt.NDArray[np.float32]]: ...
     def score(self, other: BagOfWords) -> float: ...
+
+@final
+class _SlidingWindow:
+    def __new__(
+        cls,
+        fx: float,
+        fy: float,
+        cx: float,
+        cy: float,
+        baseline_m: float,
+        max_keyframes: int = 8,
+        pixel_sigma_px: float = 1.0,
+        iterations: int = 6,
+        min_shared_landmarks: int = 20,
+        min_disparity_px: float = 1.0,
+    ) -> Self: ...
+    def __len__(self) -> int: ...
+    @property
+    def landmarks(self) -> int: ...
+    def clear(self) -> None: ...
+    def add_keyframe(
+        self,
+        camera_from_world: npt.NDArray[np.float64],
+        landmarks: npt.NDArray[np.int64],
+        left_px: npt.NDArray[np.float64],
+        right_u_px: npt.NDArray[np.float64],
+    ) -> dict[str, Any]: ...
 
 @final
 class _Vocabulary:

@@ -8,6 +8,7 @@ mod convert;
 mod errors;
 mod map;
 mod views;
+mod window;
 mod words;
 
 /// The default parameters of a core as JSON: `section` "engine" (`SpatialMemoryParams`), "map"
@@ -34,5 +35,6 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     map::register(m)?;
     views::register(m)?;
     words::register(m)?;
+    window::register(m)?;
     Ok(())
 }

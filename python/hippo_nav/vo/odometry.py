@@ -45,7 +45,7 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from hippo_nav._core import HippoNavError
+from hippo_nav._core import HippoNavError, _SlidingWindow
 from hippo_nav.geometry import planar_step
 
 log = logging.getLogger("hippo_nav.vo")
@@ -131,6 +131,27 @@ class VoParams(BaseModel):
     )
     max_speed_m_s: float = Field(60.0, gt=0.0, description="a faster step is rejected (prior used)")
     max_yaw_rate_rad_s: float = Field(3.0, gt=0.0, description="a faster turn is rejected (prior used)")
+    window_keyframes: int = Field(
+        0,
+        ge=0,
+        description="keyframes refined jointly with the landmarks they share after every keyframe (a stereo "
+        "bundle adjustment, the oldest fixed; docs/vo.md; 8 measured best); 0 or 1: frame to frame only (the "
+        "default until the whole-sequence map results are measured with the window)",
+    )
+    keyframe_min_m: float = Field(
+        0.2, ge=0.0, description="a frame becomes a keyframe after moving this far since the last one …"
+    )
+    keyframe_min_rad: float = Field(0.02, ge=0.0, description="… or turning this much")
+    window_pixel_sigma_px: float = Field(1.0, gt=0.0, description="σ of a tracked pixel in the window")
+    window_iterations: int = Field(6, ge=1, description="Levenberg–Marquardt iterations of each round")
+    window_min_shared: int = Field(
+        20, ge=1, description="a keyframe sharing fewer landmarks with the window starts a new window"
+    )
+    track_window_points: bool = Field(
+        True,
+        description="track each point into the next frame from its refined landmark (else from this frame's "
+        "stereo depth alone)",
+    )
     seed: int = Field(0, description="seeds OpenCV's RNG (RANSAC) on reset, so runs are repeatable")
     default_dt_s: float = Field(0.1, gt=0.0, description="frame interval used when timestamps do not advance")
     max_prior_gap_s: float = Field(
@@ -184,7 +205,10 @@ class _Image(NamedTuple):
 class _StereoPoints:
     left: _Image
     pixels: np.ndarray  # (n, 2) float32, left image
-    points_m: np.ndarray  # (n, 3) float64, camera frame
+    points_m: np.ndarray  # (n, 3) float64, camera frame: where tracking puts them (refined by the window)
+    stereo_m: np.ndarray  # (n, 3) float64, camera frame: from this frame's disparity alone
+    ids: np.ndarray  # (n,) int64, the same while a point is tracked (the window's landmark ids)
+    right_u: np.ndarray  # (n,) float64, right-image column corrected by `disparity_offset_px`
 
 
 @dataclass
@@ -196,10 +220,14 @@ class _Tracks:
     n_inliers: int
     object_points: np.ndarray | None = None  # (n, 3) inlier points of the previous frame
     image_px: np.ndarray | None = None  # (n, 2) float32, where they are in the current left image
+    ids: np.ndarray | None = None  # (n,) int64, their ids
+    stereo_m: np.ndarray | None = None  # (n, 3) their points from the previous frame's disparity alone
 
 
 _NO_PIXELS = np.zeros((0, 2), np.float32)
 _NO_POINTS = np.zeros((0, 3))
+_NO_IDS = np.zeros(0, np.int64)
+_NO_KEPT = (_NO_PIXELS, _NO_POINTS, _NO_IDS, np.zeros(0))
 
 
 class StereoOdometry:
@@ -238,6 +266,20 @@ class StereoOdometry:
         self._fast = cv2.FastFeatureDetector_create(p.fast_threshold, nonmaxSuppression=True)
         r = int(np.ceil(p.min_feature_distance_px))
         self._keep_out = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))
+        self._window: _SlidingWindow | None = None
+        if p.window_keyframes >= 2:
+            self._window = _SlidingWindow(
+                self.fx,
+                self.fy,
+                self.cx,
+                self.cy,
+                self.baseline_m,
+                max_keyframes=p.window_keyframes,
+                pixel_sigma_px=p.window_pixel_sigma_px,
+                iterations=p.window_iterations,
+                min_shared_landmarks=p.window_min_shared,
+                min_disparity_px=p.min_disparity_px,
+            )
         self.reset()
 
     def reset(self) -> None:
@@ -248,15 +290,28 @@ class StereoOdometry:
         self._prior_step = np.eye(4)  # camera_prev_from_camera_cur of the last good frame
         self._prior_dt_s = self.params.default_dt_s
         self._disparity_residuals_px: deque[float] = deque(maxlen=self.params.stereo_bias_window)
+        self._next_id = 0
+        # Where the last step handed out ended (the previous frame's pose, refined when it was a keyframe),
+        # and the last keyframe's pose.
+        self._world_from_previous = np.eye(4)
+        self._world_from_keyframe: np.ndarray | None = None
+        if self._window is not None:
+            self._window.clear()
         self.warnings: list[str] = []
 
     # ------------------------------------------------------------------------------------------------
     def process(self, frame) -> VoStep:
-        """The step from the previous frame to `frame` (identity with status "first" on the first)."""
+        """The step from the previous frame to `frame` (identity with status "first" on the first).
+
+        With the window on, the step ends at the frame's refined pose and starts where the previous
+        step ended: a refinement of earlier keyframes that moves this one enters this step, so the
+        chain of steps is the trajectory the VO estimates in real time (each frame as refined when it
+        was the newest)."""
         left, right = (_Image(image, cv2.pyrDown(image)) for image in self._check_images(frame))
         stamp = float(frame.timestamp_s)
         if self._previous is None:
-            current = self._stereo_points(left, right, _NO_PIXELS, _NO_POINTS)
+            current = self._stereo_points(left, right, *_NO_KEPT)
+            current, _ = self._keyframe(current, np.eye(4))
             self._previous, self._previous_time_s = current, stamp
             return VoStep(np.eye(4), "first", 0.0, len(current.pixels), 0, 0, float("nan"))
         dt_s = stamp - float(self._previous_time_s or 0.0)
@@ -272,13 +327,55 @@ class StereoOdometry:
             status = "rejected"
         if status != "ok":
             step = prior
-        else:
-            self._prior_step, self._prior_dt_s = step, dt_s
         if status != "ok" or not self.params.track_features:
-            kept = (_NO_PIXELS, _NO_POINTS)  # detect afresh (after a bad frame the tracks are suspect too)
+            kept = _NO_KEPT  # detect afresh (after a bad frame the tracks are suspect too)
         current = self._stereo_points(left, right, *kept)
+        if status == "ok" and self._window is not None:
+            world_from_current = _orthonormal(self._world_from_previous @ step)
+            current, world_from_current = self._keyframe(current, world_from_current)
+            step = np.linalg.inv(self._world_from_previous) @ world_from_current
+            self._world_from_previous = world_from_current
+        else:  # the step as measured (window off: exactly the frame-to-frame VO)
+            self._world_from_previous = _orthonormal(self._world_from_previous @ step)
+        if status == "ok":
+            self._prior_step, self._prior_dt_s = step, dt_s  # constant velocity: the step handed out
         self._previous, self._previous_time_s = current, stamp
         return VoStep(step, status, dt_s, len(current.pixels), n_tracked, n_inliers, rmse)
+
+    def _keyframe(
+        self, current: _StereoPoints, world_from_current: np.ndarray
+    ) -> tuple[_StereoPoints, np.ndarray]:
+        """(points carried on, pose) of a well-tracked frame, refined in the window when it is a keyframe.
+
+        Points whose landmark the window found to be an outlier (a moving object, a track that slid) are
+        not tracked further; the others carry their refined position into the next frame."""
+        p = self.params
+        if self._window is None:
+            return current, world_from_current
+        if self._world_from_keyframe is not None:
+            moved = np.linalg.inv(self._world_from_keyframe) @ world_from_current
+            angle = np.arccos(np.clip((np.trace(moved[:3, :3]) - 1) / 2, -1.0, 1.0))
+            if np.linalg.norm(moved[:3, 3]) < p.keyframe_min_m and angle < p.keyframe_min_rad:
+                return current, world_from_current
+        outcome = self._window.add_keyframe(
+            np.linalg.inv(world_from_current), current.ids, current.pixels.astype(np.float64), current.right_u
+        )
+        world_from_current = self._world_from_keyframe = np.linalg.inv(outcome["camera_from_world"])
+        keep = ~outcome["outlier"]
+        points_m = current.points_m
+        if p.track_window_points:
+            refined = outcome["point_camera"]
+            usable = np.isfinite(refined).all(axis=1) & (refined[:, 2] > 0)
+            points_m = np.where(usable[:, None], refined, points_m)
+        kept = _StereoPoints(
+            current.left,
+            current.pixels[keep],
+            points_m[keep],
+            current.stereo_m[keep],
+            current.ids[keep],
+            current.right_u[keep],
+        )
+        return kept, world_from_current
 
     # ------------------------------------------------------------------------------------------------
     def _check_images(self, frame) -> tuple[np.ndarray, np.ndarray]:
@@ -303,20 +400,35 @@ class StereoOdometry:
         return left, right
 
     def _stereo_points(
-        self, left: _Image, right: _Image, kept_px: np.ndarray, kept_m: np.ndarray
+        self,
+        left: _Image,
+        right: _Image,
+        kept_px: np.ndarray,
+        kept_m: np.ndarray,
+        kept_ids: np.ndarray,
+        kept_right_u: np.ndarray,
     ) -> _StereoPoints:
-        """This frame's points: those kept from tracking, plus new corners where the image has none."""
+        """This frame's points: those kept from tracking, plus new corners (new ids) where the image has none."""
         p = self.params
         corners = self._detect(left.full, p.max_features - len(kept_px), kept_px)
         if len(corners) == 0:
-            return _StereoPoints(left, kept_px, kept_m)
+            return _StereoPoints(left, kept_px, kept_m, kept_m, kept_ids, kept_right_u)
         guess = corners.copy()
         guess[:, 0] -= self.fx * self.baseline_m / p.stereo_guess_depth_m - p.disparity_offset_px
         in_right, found = self._track(left, right, corners, guess)
         keep, disparity = self._stereo_check(left, right, corners, in_right, found)
-        pixels = np.concatenate([kept_px, corners[keep]])
+        n_new = int(keep.sum())
+        new_ids = np.arange(self._next_id, self._next_id + n_new, dtype=np.int64)
+        self._next_id += n_new
         points_m = np.concatenate([kept_m, self._triangulate(corners[keep], disparity[keep])])
-        return _StereoPoints(left, pixels, points_m)
+        return _StereoPoints(
+            left,
+            np.concatenate([kept_px, corners[keep]]),
+            points_m,
+            points_m,
+            np.concatenate([kept_ids, new_ids]),
+            np.concatenate([kept_right_u, (corners[keep, 0] - disparity[keep]).astype(np.float64)]),
+        )
 
     def _detect(self, image: np.ndarray, wanted: int, kept_px: np.ndarray) -> np.ndarray:
         """(n ≤ wanted, 2) float32: new corners, `min_feature_distance_px` apart and as far from kept points."""
@@ -399,12 +511,12 @@ class StereoOdometry:
     def _measure(self, prev: _StereoPoints, left: _Image, right: _Image, prior: np.ndarray):
         """(step, status, n_tracked, n_inliers, rmse, kept) from tracking `prev`'s points into `left`.
 
-        `kept` = (pixels, points_m) of the inliers that also matched in `right`: the points this frame
+        `kept` = (pixels, points_m, ids, right columns) of the inliers that also matched in `right`: the points this frame
         carries on. A sudden change of motion (a car turning into a corner) makes the prior's prediction
         wrong by tens of pixels, and KLT started there can settle on a consistent but wrong set of matches
         in repetitive texture; so several motion hypotheses are tried in turn (see below)."""
         p = self.params
-        failed = (prior, "low_texture", 0, 0, float("nan"), (_NO_PIXELS, _NO_POINTS))
+        failed = (prior, "low_texture", 0, 0, float("nan"), _NO_KEPT)
         if len(prev.pixels) < p.min_inliers:
             return failed
         # Hypotheses for where the points went, tried in turn until most tracks agree with the PnP
@@ -438,6 +550,7 @@ class StereoOdometry:
         ):
             return (*failed[:2], best.n_tracked, best.n_inliers, *failed[4:])
         object_points, image_px = best.object_points, best.image_px
+        assert best.ids is not None  # set with the inliers
         rvec, _ = cv2.Rodrigues(best.cur_from_prev[:3, :3])
         tvec = best.cur_from_prev[:3, 3].reshape(3, 1).copy()
         rvec, tvec = cv2.solvePnPRefineLM(
@@ -458,9 +571,17 @@ class StereoOdometry:
         has_right, disparity = self._stereo_check(left, right, image_px, in_right, ok.ravel() == 1)
         if p.stereo_refinement:
             cur_from_prev = self._refine_stereo(cur_from_prev, object_points, image_px, in_right, has_right)
-        self._judge_stereo_bias(cur_from_prev, object_points, disparity, has_right)
+        # Judged on the previous frame's own stereo points: the window's refined ones are not what the
+        # disparities measured.
+        assert best.stereo_m is not None
+        self._judge_stereo_bias(cur_from_prev, best.stereo_m, disparity, has_right)
         rmse = self._rmse(cur_from_prev, object_points, image_px.astype(np.float64))
-        kept = (image_px[has_right], self._triangulate(image_px[has_right], disparity[has_right]))
+        kept = (
+            image_px[has_right],
+            self._triangulate(image_px[has_right], disparity[has_right]),
+            best.ids[has_right],
+            (image_px[has_right, 0] - disparity[has_right]).astype(np.float64),
+        )
         return (np.linalg.inv(cur_from_prev), "ok", best.n_tracked, best.n_inliers, rmse, kept)
 
     def _track_and_pnp(self, prev: _StereoPoints, left: _Image, cur_from_prev: np.ndarray) -> _Tracks:
@@ -505,7 +626,15 @@ class StereoOdometry:
         pose = np.eye(4)
         pose[:3, :3] = cv2.Rodrigues(rvec)[0]
         pose[:3, 3] = tvec.ravel()
-        return _Tracks(pose, n_tracked, n_inliers, object_points[idx], image_px[idx])
+        return _Tracks(
+            pose,
+            n_tracked,
+            n_inliers,
+            object_points[idx],
+            image_px[idx],
+            prev.ids[good][idx],
+            prev.stereo_m[good][idx],
+        )
 
     @property
     def tracked_pixels(self) -> np.ndarray:
@@ -661,6 +790,14 @@ def _planar_motion(forward_m: float, yaw_rad: float) -> np.ndarray:
     step[:3, :3] = cv2.Rodrigues(np.array([0.0, -yaw_rad, 0.0]))[0]
     step[2, 3] = forward_m
     return step
+
+
+def _orthonormal(pose: np.ndarray) -> np.ndarray:
+    """The pose with its rotation projected back onto SO(3) (a long chain of products drifts from it)."""
+    u, _, vt = np.linalg.svd(pose[:3, :3])
+    out = pose.copy()
+    out[:3, :3] = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+    return out
 
 
 def _skew(v: np.ndarray) -> np.ndarray:

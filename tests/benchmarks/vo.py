@@ -1,0 +1,155 @@
+"""The VO benchmark every VO change is judged by: all the real stereo frames and the whole-sequence renders.
+
+    python tests/benchmarks/vo.py --data ../shared/data --renders runs/renders --out runs/vo
+
+Rows (each VO variant on each set, measured in the same run, one after another on the same machine):
+- real KITTI 06 frames 0–50 (urban), and 01 frames 0–50 (highway) as given and with its documented
+  disparity offset (`vo.disparity_offset_px` 1.5 px; docs/vo.md): t_rel and r_rel over every start frame
+  and the 10–50 m segments these 51 frames allow;
+- the renders of `--renders` (a KITTI root made by `hippo-nav render`; sequences 00, 02, 05, 06, 08 when
+  present): VO alone, ATE 2-D and 3-D (SE(3) alignment), t_rel and r_rel over the devkit's 100–800 m
+  segments (every 10th start frame, as the devkit).
+Time per frame is the VO's own (`process`, images already decoded), the median of the run, as a ratio
+against the first variant in the same run: absolute times on a shared machine are noise.
+
+Variants: `frame_to_frame` (`vo.window_keyframes = 0`, the default: the VO before the windowed refinement)
+and `window` (`vo.window_keyframes = 8`); `--variant NAME=JSON` adds or replaces one (a `vo` section's overrides).
+
+Writes `vo.md` (the tables of docs/vo.md) and `vo.json` under `--out`. Not a test (no assertions; pytest does
+not collect it): a reproducible measurement on the shared data and the project's own renders.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+from hippo_nav.datasets import KittiOdometry
+from hippo_nav.metrics import ate_rmse, relative_errors_kitti
+from hippo_nav.vo import StereoOdometry, VoParams
+
+SHORT_LENGTHS_M = (10.0, 20.0, 30.0, 40.0, 50.0)
+RENDERED = ("00", "02", "05", "06", "08")
+WINDOW = {"window_keyframes": 8}
+VARIANTS = {"frame_to_frame": {"window_keyframes": 0}, "window": WINDOW}
+
+
+def run_vo(dataset, params: VoParams) -> tuple[np.ndarray, float, int]:
+    """(world_from_camera (n, 4, 4), median ms per frame, frames not ok) of the VO over `dataset`."""
+    vo = StereoOdometry(dataset.calibration, params)
+    poses, times, not_ok = [], [], 0
+    world_from_camera = np.eye(4)
+    for i in range(len(dataset)):
+        frame = dataset[i]
+        start = time.perf_counter()
+        step = vo.process(frame)
+        times.append(time.perf_counter() - start)
+        not_ok += step.status not in ("ok", "first")
+        world_from_camera = world_from_camera @ step.camera_prev_from_camera_cur
+        poses.append(world_from_camera)
+    return np.stack(poses), 1e3 * float(np.median(times)), not_ok
+
+
+def measure(dataset, params: VoParams, lengths, step: int) -> dict:
+    est, ms, not_ok = run_vo(dataset, params)
+    gt = dataset.ground_truth()
+    gt = np.linalg.inv(gt[0]) @ gt
+    rel = relative_errors_kitti(gt, est, lengths=lengths, step=step)
+    length_m = float(np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1).sum())
+    return {
+        "frames": len(dataset),
+        "length_m": round(length_m, 1),
+        "ate_2d_m": ate_rmse(gt, est, planar=True),
+        "ate_3d_m": ate_rmse(gt, est),
+        "t_rel_percent": rel["t_rel_percent"],
+        "r_rel_deg_per_100m": rel["r_rel_deg_per_100m"],
+        "segments": rel["segments"],
+        "ms_per_frame": ms,
+        "frames_not_ok": not_ok,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--data", type=Path, help="the shared data folder (kitti_odometry/ inside)")
+    parser.add_argument("--renders", type=Path, help="a KITTI root of whole-sequence renders")
+    parser.add_argument("--sequences", nargs="+", default=list(RENDERED), help="rendered sequences to run")
+    parser.add_argument("--variant", action="append", default=[], help="NAME=JSON of vo overrides")
+    parser.add_argument("--only", nargs="+", help="run only these variants")
+    parser.add_argument("--out", type=Path, required=True)
+    args = parser.parse_args(argv)
+    variants = dict(VARIANTS)
+    for spec in args.variant:
+        name, _, overrides = spec.partition("=")
+        variants[name] = json.loads(overrides)
+    if args.only:
+        variants = {name: variants[name] for name in args.only}
+    sets = []  # (label, dataset factory, extra vo overrides, lengths, step)
+    if args.data is not None:
+        kitti = args.data / "kitti_odometry"
+        sets += [
+            ("real 06, frames 0–50", lambda: KittiOdometry(kitti, "06"), {}, SHORT_LENGTHS_M, 1),
+            ("real 01, frames 0–50, as given", lambda: KittiOdometry(kitti, "01"), {}, SHORT_LENGTHS_M, 1),
+            (
+                "real 01, frames 0–50, offset 1.5 px",
+                lambda: KittiOdometry(kitti, "01"),
+                {"disparity_offset_px": 1.5},
+                SHORT_LENGTHS_M,
+                1,
+            ),
+        ]
+    if args.renders is not None:
+        for seq in args.sequences:
+            if (args.renders / "poses" / f"{seq}.txt").exists():
+                sets.append((f"render {seq}", lambda s=seq: KittiOdometry(args.renders, s), {}, None, 10))
+    args.out.mkdir(parents=True, exist_ok=True)
+    results: dict[str, dict[str, dict]] = {}
+    for label, factory, extra, lengths, step in sets:
+        dataset = factory()
+        results[label] = {}
+        for name, overrides in variants.items():
+            params = VoParams(**{**extra, **overrides})
+            kwargs = {} if lengths is None else {"lengths": lengths}
+            row = measure(
+                dataset,
+                params,
+                kwargs.get("lengths", (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)),
+                step,
+            )
+            results[label][name] = row
+            print(
+                f"{label:38s} {name:16s} "
+                + json.dumps({k: round(v, 3) if isinstance(v, float) else v for k, v in row.items()}),
+                flush=True,
+            )
+        (args.out / "vo.json").write_text(json.dumps(results, indent=1))
+    (args.out / "vo.md").write_text(table(results, list(variants)))
+    print(table(results, list(variants)))
+    return 0
+
+
+def table(results: dict, variants: list[str]) -> str:
+    base = variants[0]
+    lines = [
+        "| data | VO | ATE 2-D / 3-D (m) | t_rel (%) | r_rel (°/100 m) | time per frame (× " + base + ") |",
+        "|---|---|---|---|---|---|",
+    ]
+    for label, rows in results.items():
+        for name in variants:
+            if name not in rows:
+                continue
+            r = rows[name]
+            ratio = r["ms_per_frame"] / rows[base]["ms_per_frame"] if base in rows else float("nan")
+            lines.append(
+                f"| {label} | {name} | {r['ate_2d_m']:.2f} / {r['ate_3d_m']:.2f} | {r['t_rel_percent']:.2f} | "
+                f"{r['r_rel_deg_per_100m']:.2f} | {ratio:.2f} |"
+            )
+    return "\n".join(lines) + "\n"
+
+
+if __name__ == "__main__":
+    sys.exit(main())
