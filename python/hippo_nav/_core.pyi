@@ -109,6 +109,7 @@ class _SlidingWindow:
         baseline_m: float,
         max_keyframes: int = 8,
         pixel_sigma_px: float = 1.0,
+        right_sigma_px: float = 1.0,
         iterations: int = 6,
         min_shared_landmarks: int = 20,
         min_disparity_px: float = 1.0,

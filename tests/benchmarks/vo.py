@@ -12,8 +12,8 @@ Rows (each VO variant on each set, measured in the same run, one after another o
 Time per frame is the VO's own (`process`, images already decoded), the median of the run, as a ratio
 against the first variant in the same run: absolute times on a shared machine are noise.
 
-Variants: `frame_to_frame` (`vo.window_keyframes = 0`, the default: the VO before the windowed refinement)
-and `window` (`vo.window_keyframes = 8`); `--variant NAME=JSON` adds or replaces one (a `vo` section's overrides).
+Variants: `frame_to_frame` (`vo.window_keyframes = 0`: the VO before the windowed refinement) and `window`
+(`vo.window_keyframes = 8`, the default); `--variant NAME=JSON` adds or replaces one (a `vo` section's overrides).
 
 Writes `vo.md` (the tables of docs/vo.md) and `vo.json` under `--out`. Not a test (no assertions; pytest does
 not collect it): a reproducible measurement on the shared data and the project's own renders.
@@ -34,7 +34,7 @@ from hippo_nav.vo import StereoOdometry, VoParams
 
 SHORT_LENGTHS_M = (10.0, 20.0, 30.0, 40.0, 50.0)
 RENDERED = ("00", "02", "05", "06", "08")
-WINDOW = {"window_keyframes": 8}
+WINDOW = {"window_keyframes": 8}  # the default
 VARIANTS = {"frame_to_frame": {"window_keyframes": 0}, "window": WINDOW}
 
 

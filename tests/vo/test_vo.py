@@ -184,7 +184,9 @@ def test_real_kitti_01_highway_scale_follows_the_right_camera_baseline(shared_da
     the same calib.txt (P3), not fitted to the ground truth."""
     data = KittiOdometry(shared_data / "kitti_odometry", "01")
     gt = _rebased(data.ground_truth())
-    est, _ = run_odometry(data)
+    # The frame-to-frame steps: their scale is the stereo pair's alone (the window adds temporal parallax,
+    # which pulls a biased pair's scale part of the way back: 1.118 here).
+    est, _ = run_odometry(data, VoParams(window_keyframes=0))
     true_steps = np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1)
     ratio = np.median(np.linalg.norm(np.diff(est[:, :3, 3], axis=0), axis=1) / true_steps)
     baseline_cam3_m = -data.calibration.P3[0, 3] / data.calibration.P3[0, 0]

@@ -22,7 +22,7 @@ pub struct PySlidingWindow {
 #[pymethods]
 impl PySlidingWindow {
     #[new]
-    #[pyo3(signature = (fx, fy, cx, cy, baseline_m, max_keyframes=8, pixel_sigma_px=1.0, iterations=6, min_shared_landmarks=20, min_disparity_px=1.0))]
+    #[pyo3(signature = (fx, fy, cx, cy, baseline_m, max_keyframes=8, pixel_sigma_px=1.0, right_sigma_px=1.0, iterations=6, min_shared_landmarks=20, min_disparity_px=1.0))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         fx: f64,
@@ -32,6 +32,7 @@ impl PySlidingWindow {
         baseline_m: f64,
         max_keyframes: usize,
         pixel_sigma_px: f64,
+        right_sigma_px: f64,
         iterations: usize,
         min_shared_landmarks: usize,
         min_disparity_px: f64,
@@ -40,6 +41,7 @@ impl PySlidingWindow {
         let params = WindowParams {
             max_keyframes,
             pixel_sigma_px,
+            right_sigma_px,
             iterations,
             min_shared_landmarks,
             min_disparity_px,

@@ -8,7 +8,7 @@
 //! such fills in the same dense pose block and adds ordering work for nothing.
 //!
 //! Residual of an observation: the projected (u, v, u_right) minus the measured ones, in pixels, divided by
-//! `pixel_sigma_px`; a missing right-image match leaves (u, v). Loss: Huber on the observation's whole
+//! `pixel_sigma_px` (u, v) and `right_sigma_px` (u_right); a missing right-image match leaves (u, v). Loss: Huber on the observation's whole
 //! normalised residual (a bad track is one bad observation, not one bad coordinate).
 use crate::camera::StereoCamera;
 use nalgebra::{
@@ -34,10 +34,19 @@ pub struct BundleObservation {
 pub struct BundleSettings {
     /// Standard deviation of a measured pixel coordinate.
     pub pixel_sigma_px: f64,
+    /// Standard deviation of a measured right-image column (a stereo match is less certain than a
+    /// temporal track where the surface is slanted: the two views see it differently deformed).
+    pub right_sigma_px: f64,
     /// Huber threshold on an observation's normalised residual norm (in σ).
     pub huber_sigma: f64,
     /// Levenberg–Marquardt iterations at most.
     pub max_iterations: usize,
+}
+
+impl BundleSettings {
+    fn sigmas(&self) -> [f64; 2] {
+        [self.pixel_sigma_px, self.right_sigma_px]
+    }
 }
 
 /// What an adjustment did.
@@ -58,15 +67,15 @@ fn residual(
     pose: &Isometry3<f64>,
     point: &Vector3<f64>,
     obs: &BundleObservation,
-    sigma: f64,
+    sigma: [f64; 2],
 ) -> Option<(Vector3<f64>, Vector3<f64>)> {
     let x = pose * nalgebra::Point3::from(*point);
     let projected = camera.project(&x.coords)?;
-    let right = obs.right_u_px.map_or(0.0, |u| (projected.z - u) / sigma);
+    let right = obs.right_u_px.map_or(0.0, |u| (projected.z - u) / sigma[1]);
     Some((
         Vector3::new(
-            (projected.x - obs.left_px[0]) / sigma,
-            (projected.y - obs.left_px[1]) / sigma,
+            (projected.x - obs.left_px[0]) / sigma[0],
+            (projected.y - obs.left_px[1]) / sigma[0],
             right,
         ),
         x.coords,
@@ -98,7 +107,7 @@ fn cost(
             &poses[obs.pose],
             &points[obs.point],
             obs,
-            settings.pixel_sigma_px,
+            settings.sigmas(),
         )?;
         total += huber(r.norm_squared(), settings.huber_sigma).0;
     }
@@ -111,7 +120,7 @@ pub fn chi2(
     poses: &[Isometry3<f64>],
     points: &[Vector3<f64>],
     observations: &[BundleObservation],
-    pixel_sigma_px: f64,
+    settings: &BundleSettings,
 ) -> Vec<f64> {
     observations
         .iter()
@@ -121,7 +130,7 @@ pub fn chi2(
                 &poses[obs.pose],
                 &points[obs.point],
                 obs,
-                pixel_sigma_px,
+                settings.sigmas(),
             )
             .map_or(f64::INFINITY, |(r, _)| r.norm_squared())
         })
@@ -169,7 +178,7 @@ pub fn adjust(
         by_point[obs.point].push(i);
     }
     let mut lambda = 1e-4;
-    let sigma = settings.pixel_sigma_px;
+    let sigma = settings.sigmas();
     for _ in 0..settings.max_iterations {
         // Linearise: per observation the pose block Jᵀ W J pieces, per point its 3×3 block.
         let mut h_pp = vec![Matrix6::<f64>::zeros(); n_free];
@@ -183,9 +192,13 @@ pub fn adjust(
                 return report; // cost() above would have said so; kept for safety
             };
             let (_, w) = huber(r.norm_squared(), settings.huber_sigma);
-            let mut d_pixel = camera.jacobian(&x) / sigma;
+            let mut d_pixel = camera.jacobian(&x);
+            d_pixel.row_mut(0).scale_mut(1.0 / sigma[0]);
+            d_pixel.row_mut(1).scale_mut(1.0 / sigma[0]);
             if obs.right_u_px.is_none() {
                 d_pixel.row_mut(2).fill(0.0);
+            } else {
+                d_pixel.row_mut(2).scale_mut(1.0 / sigma[1]);
             }
             let j_point = d_pixel * pose.rotation.to_rotation_matrix().matrix();
             h_ll[obs.point] += w * j_point.transpose() * j_point;
@@ -298,14 +311,20 @@ fn solve(
             let update = wa_inv * g_l[j];
             let mut rows = b.fixed_rows_mut::<6>(6 * ka);
             rows += update;
+            // S is symmetric: each pair of keyframes once, mirrored.
             for &c in obs_of_point {
                 let pc = observations[c].pose;
-                if pc < fixed {
+                if pc < pa {
                     continue;
                 }
                 let kc = pc - fixed;
+                let block = wa_inv * h_pl[c].transpose();
                 let mut view = s.fixed_view_mut::<6, 6>(6 * ka, 6 * kc);
-                view -= wa_inv * h_pl[c].transpose();
+                view -= block;
+                if kc != ka {
+                    let mut mirror = s.fixed_view_mut::<6, 6>(6 * kc, 6 * ka);
+                    mirror -= block.transpose();
+                }
             }
         }
     }

@@ -23,6 +23,8 @@ pub struct WindowParams {
     pub max_keyframes: usize,
     /// Standard deviation of a tracked pixel coordinate, px.
     pub pixel_sigma_px: f64,
+    /// Standard deviation of a right-image column from the stereo match, px.
+    pub right_sigma_px: f64,
     /// Huber threshold on an observation's normalised residual norm, σ.
     pub huber_sigma: f64,
     /// χ² bound beyond which an observation with a right-image match (3 coordinates) is an outlier
@@ -43,6 +45,7 @@ impl Default for WindowParams {
         Self {
             max_keyframes: 8,
             pixel_sigma_px: 1.0,
+            right_sigma_px: 1.0,
             huber_sigma: 7.815_f64.sqrt(),
             outlier_chi2_stereo: 7.815,
             outlier_chi2_mono: 5.991,
@@ -65,6 +68,7 @@ impl WindowParams {
         }
         for (name, value) in [
             ("pixel_sigma_px", self.pixel_sigma_px),
+            ("right_sigma_px", self.right_sigma_px),
             ("huber_sigma", self.huber_sigma),
             ("outlier_chi2_stereo", self.outlier_chi2_stereo),
             ("outlier_chi2_mono", self.outlier_chi2_mono),
@@ -351,6 +355,7 @@ impl SlidingWindow {
         }
         let settings = BundleSettings {
             pixel_sigma_px: self.params.pixel_sigma_px,
+            right_sigma_px: self.params.right_sigma_px,
             huber_sigma: self.params.huber_sigma,
             max_iterations: self.params.iterations,
         };
@@ -405,13 +410,7 @@ impl SlidingWindow {
             &observations,
             &settings,
         );
-        let chi2 = bundle::chi2(
-            &self.camera,
-            &poses,
-            &points,
-            &observations,
-            self.params.pixel_sigma_px,
-        );
+        let chi2 = bundle::chi2(&self.camera, &poses, &points, &observations, &settings);
         let mut kept = Vec::with_capacity(observations.len());
         let mut new_outliers = 0;
         for ((obs, &(k, i)), &c) in observations.iter().zip(&origin).zip(&chi2) {
