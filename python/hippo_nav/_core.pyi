@@ -108,6 +108,7 @@ class _SlidingWindow:
         cy: float,
         baseline_m: float,
         max_keyframes: int = 8,
+        fixed_keyframes: int = 0,
         pixel_sigma_px: float = 1.0,
         right_sigma_px: float = 1.0,
         iterations: int = 6,

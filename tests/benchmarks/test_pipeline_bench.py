@@ -81,3 +81,13 @@ def test_pipeline_real_kitti_06_by_view_cells(benchmark, shared_data, view_cells
     data = KittiOdometry(shared_data / "kitti_odometry", "06")
     data.name = f"KITTI 06 frames 0-50, {view_cells} view cells (baseline: {other})"
     _bench(benchmark, data, {"parts": {"view_cells": view_cells}}, {"parts": {"view_cells": other}})
+
+
+@pytest.mark.data
+def test_pipeline_real_kitti_06_windowed_vo(benchmark, shared_data):
+    """The current pipeline (the VO refined over a window of keyframes) against the same pipeline with the
+    frame-to-frame VO alone, in the same rounds: what the windowed refinement costs the whole system."""
+    benchmark.group = "pipeline by VO"
+    data = KittiOdometry(shared_data / "kitti_odometry", "06")
+    data.name = "KITTI 06 frames 0-50, windowed VO (baseline: frame to frame)"
+    _bench(benchmark, data, {}, {"vo": {"window_keyframes": 0}})

@@ -95,8 +95,27 @@ def test_results_are_written_when_a_metric_is_unavailable(demo, tmp_path, how):
 
 
 # --- signals --------------------------------------------------------------------------------------------
+@pytest.fixture
+def disposition():
+    """Set a signal's disposition for one test and put the inherited one back afterwards: the tests must not
+    depend on how pytest was started (under `nohup` SIGHUP arrives ignored)."""
+    inherited = {}
+
+    def set_to(signame: str, handler) -> None:
+        number = getattr(signal, signame)
+        inherited.setdefault(number, signal.signal(number, handler))
+
+    yield set_to
+    for number, handler in inherited.items():
+        signal.signal(number, handler)
+
+
 @pytest.mark.parametrize("signame, code", [("SIGTERM", 143), ("SIGHUP", 129)])
-def test_sigterm_and_sighup_keep_the_frames_processed(demo, tmp_path, monkeypatch, signame, code):
+def test_sigterm_and_sighup_keep_the_frames_processed(
+    demo, tmp_path, monkeypatch, disposition, signame, code
+):
+    disposition(signame, signal.SIG_DFL)
+
     def kill_at_frame_8(i):
         if i == 8:
             os.kill(os.getpid(), getattr(signal, signame))
@@ -111,6 +130,25 @@ def test_sigterm_and_sighup_keep_the_frames_processed(demo, tmp_path, monkeypatc
     assert metrics["interrupted"] and metrics["interrupted_by"] == signame and 6 <= metrics["frames"] <= 9
     assert (out / "trajectory_corrected.kitti.txt").read_text().count("\n") == metrics["frames"]
     assert signal.getsignal(getattr(signal, signame)) is signal.SIG_DFL  # the handler is put back
+
+
+@pytest.mark.parametrize("signame", ["SIGHUP", "SIGTERM"])
+def test_a_signal_started_ignored_stays_ignored(demo, tmp_path, monkeypatch, disposition, signame):
+    """`nohup hippo-nav run …` starts with SIGHUP ignored: a closed terminal must not stop the run."""
+    disposition(signame, signal.SIG_IGN)
+
+    def hang_up_at_frame_8(i):
+        if i == 8:
+            os.kill(os.getpid(), getattr(signal, signame))
+
+    monkeypatch.setattr(
+        "hippo_nav.pipeline.runner.open_input", lambda *a, **k: Frames(demo, 12, on_load=hang_up_at_frame_8)
+    )
+    out = tmp_path / "out"
+    assert main(["run", "--no-progress", "--no-figures", "--out", str(out)]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert not metrics["interrupted"] and metrics["frames"] == 12
+    assert signal.getsignal(getattr(signal, signame)) is signal.SIG_IGN
 
 
 def test_ctrl_c_before_the_first_frame_exits_130(demo, tmp_path, monkeypatch, capsys):

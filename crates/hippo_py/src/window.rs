@@ -22,7 +22,7 @@ pub struct PySlidingWindow {
 #[pymethods]
 impl PySlidingWindow {
     #[new]
-    #[pyo3(signature = (fx, fy, cx, cy, baseline_m, max_keyframes=8, pixel_sigma_px=1.0, right_sigma_px=1.0, iterations=6, min_shared_landmarks=20, min_disparity_px=1.0))]
+    #[pyo3(signature = (fx, fy, cx, cy, baseline_m, max_keyframes=8, fixed_keyframes=0, pixel_sigma_px=1.0, right_sigma_px=1.0, iterations=6, min_shared_landmarks=20, min_disparity_px=1.0))]
     #[allow(clippy::too_many_arguments)]
     fn new(
         fx: f64,
@@ -31,6 +31,7 @@ impl PySlidingWindow {
         cy: f64,
         baseline_m: f64,
         max_keyframes: usize,
+        fixed_keyframes: usize,
         pixel_sigma_px: f64,
         right_sigma_px: f64,
         iterations: usize,
@@ -40,6 +41,7 @@ impl PySlidingWindow {
         let camera = StereoCamera::new(fx, fy, cx, cy, baseline_m).map_err(to_py_err)?;
         let params = WindowParams {
             max_keyframes,
+            fixed_keyframes,
             pixel_sigma_px,
             right_sigma_px,
             iterations,

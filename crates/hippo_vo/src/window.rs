@@ -21,6 +21,9 @@ use std::collections::{HashMap, VecDeque};
 pub struct WindowParams {
     /// Keyframes refined together (the oldest stays fixed); ≥ 2.
     pub max_keyframes: usize,
+    /// Older keyframes kept beyond those, fixed: their observations still place the landmarks they share
+    /// with the refined ones (a longer baseline), as the fixed keyframes of ORB-SLAM's local adjustment.
+    pub fixed_keyframes: usize,
     /// Standard deviation of a tracked pixel coordinate, px.
     pub pixel_sigma_px: f64,
     /// Standard deviation of a right-image column from the stereo match, px.
@@ -44,6 +47,7 @@ impl Default for WindowParams {
     fn default() -> Self {
         Self {
             max_keyframes: 8,
+            fixed_keyframes: 0,
             pixel_sigma_px: 1.0,
             right_sigma_px: 1.0,
             huber_sigma: 7.815_f64.sqrt(),
@@ -291,7 +295,7 @@ impl SlidingWindow {
             camera_from_world: camera_from_world_guess,
             observations: stored,
         });
-        while self.keyframes.len() > self.params.max_keyframes {
+        while self.keyframes.len() > self.params.max_keyframes + self.params.fixed_keyframes {
             if let Some(old) = self.keyframes.pop_front() {
                 for obs in &old.observations {
                     if let Some(landmark) = self.landmarks.get_mut(&obs.landmark) {
@@ -402,10 +406,14 @@ impl SlidingWindow {
                 }
             }
         }
+        // The oldest keyframe, and those kept beyond `max_keyframes`, stay fixed.
+        let fixed = (self.keyframes.len() + 1)
+            .saturating_sub(self.params.max_keyframes)
+            .max(1);
         let first = bundle::adjust(
             &self.camera,
             &mut poses,
-            1,
+            fixed,
             &mut points,
             &observations,
             &settings,
@@ -428,8 +436,15 @@ impl SlidingWindow {
         }
         let mut final_cost = first.final_cost;
         if new_outliers > 0 {
-            final_cost = bundle::adjust(&self.camera, &mut poses, 1, &mut points, &kept, &settings)
-                .final_cost;
+            final_cost = bundle::adjust(
+                &self.camera,
+                &mut poses,
+                fixed,
+                &mut points,
+                &kept,
+                &settings,
+            )
+            .final_cost;
         }
         for (keyframe, pose) in self.keyframes.iter_mut().zip(&poses) {
             keyframe.camera_from_world = *pose;

@@ -280,7 +280,8 @@ class Pipeline:
 def _stop_on_signals() -> Iterator[dict[str, str]]:
     """SIGTERM and SIGHUP (what schedulers and `docker stop` send) stop the run like Ctrl-C: the frames
     processed so far are still written. Yields a dict that names the signal caught. Only the main thread
-    can install handlers; elsewhere the default behaviour stays."""
+    can install handlers; elsewhere the default behaviour stays. A signal the process was started ignoring
+    stays ignored: `nohup` (SIGHUP) and a scheduler's `trap '' TERM` mean "do not stop on this"."""
     caught: dict[str, str] = {}
 
     def stop(signum: int, _frame: object) -> None:
@@ -291,7 +292,8 @@ def _stop_on_signals() -> Iterator[dict[str, str]]:
     previous = {}
     if threading.current_thread() is threading.main_thread():
         for s in wanted:
-            previous[s] = signal.signal(s, stop)
+            if signal.getsignal(s) is not signal.SIG_IGN:
+                previous[s] = signal.signal(s, stop)
     try:
         yield caught
     finally:

@@ -16,7 +16,12 @@ Per stereo frame k (rectified pair, camera x right, y down, z forward; docs/spec
 4. New corners: where no carried point lies within the minimum distance, FAST corners (the strongest per
    cell of a min-distance grid) top the frame up to `max_features`; they are stereo-matched like in step 3
    but from a typical disparity (a point 20 m away), so on the full pyramid.
-5. Checks: too few tracked points or inliers (low texture, blur, a covered lens) or a step beyond the
+5. Window (`window_keyframes` ≥ 2, the default 8): a well-tracked frame that moved becomes a keyframe; the
+   last keyframes and the landmarks they share (ids kept while a point is tracked) are refined jointly by a
+   stereo bundle adjustment in Rust (`hippo_nav._core._SlidingWindow`, crates/hippo_vo), the frame's pose is
+   the refined one, and its points carry their refined positions into the next frame (landmarks with an
+   outlier observation are dropped). docs/vo.md, "Windowed refinement".
+6. Checks: too few tracked points or inliers (low texture, blur, a covered lens) or a step beyond the
    plausible speed or turn makes the frame *flagged*: the motion prior stands in for the step, the
    carried points are dropped (the next frame detects afresh) and the status says why, so the odometry
    never crashes or jumps on a bad frame.
@@ -136,6 +141,12 @@ class VoParams(BaseModel):
         ge=0,
         description="keyframes refined jointly with the landmarks they share after every keyframe (a stereo "
         "bundle adjustment, the oldest fixed; docs/vo.md); 0 or 1: frame to frame only",
+    )
+    window_fixed_keyframes: int = Field(
+        0,
+        ge=0,
+        description="older keyframes kept beyond the window, fixed: their observations still place the "
+        "landmarks the refined keyframes share with them",
     )
     keyframe_min_m: float = Field(
         0.2, ge=0.0, description="a frame becomes a keyframe after moving this far since the last one …"
@@ -281,6 +292,7 @@ class StereoOdometry:
                 self.cy,
                 self.baseline_m,
                 max_keyframes=p.window_keyframes,
+                fixed_keyframes=p.window_fixed_keyframes,
                 pixel_sigma_px=p.window_pixel_sigma_px,
                 right_sigma_px=p.window_right_sigma_px,
                 iterations=p.window_iterations,
