@@ -62,6 +62,42 @@ def test_an_earlier_run_is_never_mixed_with_a_new_one(tmp_path, capsys):
     assert (out / "my_notes.txt").read_text() == "the user's own file"
 
 
+def test_overwrite_never_clears_a_folder_no_run_made(tmp_path, capsys):
+    """A folder of the user's own that happens to hold a config.json and a frames.csv is not a results folder:
+    --overwrite refuses it and deletes nothing; a folder a run made (even one stopped before its first frame)
+    carries the mark and is cleared."""
+    theirs = tmp_path / "experiment"
+    theirs.mkdir()
+    (theirs / "config.json").write_text('{"mine": true}')
+    (theirs / "frames.csv").write_text("my,own,table\n")
+    assert main(["run", "--no-progress", "--stop", "3", "--out", str(theirs), "--overwrite"]) == 2
+    assert "holds files no run made" in _one_line_error(capsys)
+    assert (theirs / "config.json").read_text() == '{"mine": true}'
+    assert (theirs / "frames.csv").read_text() == "my,own,table\n"
+    assert sorted(p.name for p in theirs.iterdir()) == ["config.json", "frames.csv"]
+    ours = tmp_path / "ours"
+    assert main(["run", "--no-progress", "--stop", "3", "--no-figures", "--out", str(ours)]) == 0
+    assert (ours / ".hippo_nav_results").is_file()
+    assert (
+        main(["run", "--no-progress", "--stop", "2", "--no-figures", "--out", str(ours), "--overwrite"]) == 0
+    )
+    assert json.loads((ours / "metrics.json").read_text())["frames"] == 2
+
+
+def test_a_second_run_into_a_folder_being_written_is_refused(tmp_path, capsys):
+    """Two runs started into the same new --out must not mix their files: the folder's mark is a lock."""
+    from hippo_nav.pipeline.results import prepare_results_folder
+
+    out = tmp_path / "shared"
+    _, lock = prepare_results_folder(out)  # the first run, still writing
+    for extra in ([], ["--overwrite"]):
+        assert main(["run", "--no-progress", "--stop", "2", "--no-figures", "--out", str(out), *extra]) == 2
+        assert "another run is writing" in _one_line_error(capsys)
+    assert sorted(p.name for p in out.iterdir()) == [".hippo_nav_results"]
+    lock.close()  # the first run finished
+    assert main(["run", "--no-progress", "--stop", "2", "--no-figures", "--out", str(out)]) == 0
+
+
 def test_a_kitti_run_without_out_gets_its_own_folder(tmp_path, monkeypatch, demo):
     monkeypatch.chdir(tmp_path)
     root = demo.root
@@ -239,6 +275,20 @@ def test_config_errors_name_the_field_and_value(tmp_path, capsys):
             '{"vo": {"max_features": -3}}',
             "vo.max_features: Input should be greater than or equal to 8 (got -3)",
         ),
+        # Absurd numbers that used to hang a run before frame 0 or silently turn a part off.
+        (
+            '{"engine": {"max_substep_s": 1e-9}}',
+            "engine.max_substep_s: Input should be greater than or equal",
+        ),
+        ('{"engine": {"tau_s": 1e9}}', "engine.tau_s: Input should be less than or equal to 10"),
+        (
+            '{"engine": {"torus_period_m": 1e300}}',
+            "engine.torus_period_m: Input should be less than or equal",
+        ),
+        (
+            '{"closure": {"orb_features": 1000000000}}',
+            "closure.orb_features: Input should be less than or equal",
+        ),
     ):
         cfg.write_text(config)
         assert (
@@ -316,3 +366,28 @@ def test_a_failing_keyframe_extraction_costs_closures_not_the_run(demo, tmp_path
     assert len(closure.keyframes) == result.metrics["keyframes"] == len(calls) - 1 >= 3
     assert "no stereo keyframe" in caplog.text
     assert (tmp_path / "out" / "metrics.json").is_file()
+
+
+def test_a_text_input_that_is_not_utf8_is_one_line_naming_the_file(demo, tmp_path, capsys):
+    """A config, calib.txt or times.txt holding a byte that is not UTF-8 (a Latin-1 comment, a binary file
+    saved under the wrong name): one line naming the file and the line, exit 2, no traceback."""
+    cfg = tmp_path / "config.json"
+    cfg.write_bytes(b'{"seed": 1,\n "note": "caf\xe9"}')
+    assert (
+        main(["run", "--no-progress", "--stop", "2", "--config", str(cfg), "--out", str(tmp_path / "a")]) == 2
+    )
+    err = _one_line_error(capsys)
+    assert str(cfg) in err and "not UTF-8" in err and ":2:" in err
+    source = demo.root / "sequences" / DEMO_SEQUENCE
+    for name in ("calib.txt", "times.txt"):
+        root = tmp_path / f"kitti_{name}"
+        sequence = root / "sequences" / DEMO_SEQUENCE
+        sequence.mkdir(parents=True)
+        for entry in source.iterdir():
+            (sequence / entry.name).symlink_to(entry)
+        (sequence / name).unlink()
+        (sequence / name).write_bytes((source / name).read_bytes() + b"# r\xe9sum\xe9\n")
+        args = ["run", "--kitti", str(root), "--sequence", DEMO_SEQUENCE, "--stop", "2", "--no-progress"]
+        assert main([*args, "--out", str(tmp_path / f"out_{name}")]) == 2
+        err = _one_line_error(capsys)
+        assert str(sequence / name) in err and "not UTF-8" in err

@@ -79,3 +79,38 @@ def test_render_command_and_its_errors(kitti_root, tmp_path, capsys):
     assert main([*args[:4], "08", *args[5:]]) == 2
     err = capsys.readouterr().err
     assert "08.txt" in err and len(err.strip().splitlines()) == 1
+
+
+def test_render_never_writes_outside_out_nor_over_a_sequence_it_did_not_write(kitti_root, tmp_path, capsys):
+    """`--out` equal to the KITTI root read, an `--out` holding someone else's sequence, a sequence that is a
+    path, an absurd size: each is one line, exit 2, and no file anywhere is written or changed."""
+    poses = (kitti_root / "poses" / "07.txt").read_bytes()
+    before = sorted(p for p in tmp_path.rglob("*"))
+    base = ["render", "--kitti", str(kitti_root), "--no-progress", "--size", "64x24", "--stop", "2"]
+
+    def refused(*extra: str, match: str) -> None:
+        assert main([*base, *extra]) == 2
+        err = capsys.readouterr().err
+        assert match in err and len(err.strip().splitlines()) == 1, err
+        assert sorted(p for p in tmp_path.rglob("*")) == before
+        assert (kitti_root / "poses" / "07.txt").read_bytes() == poses
+
+    refused("--sequence", "07", "--out", str(kitti_root), match="is the KITTI root being read")
+    refused(
+        "--sequence", "07", "--out", str(kitti_root / "." / "sequences" / ".."), match="KITTI root being read"
+    )
+    refused("--sequence", "../../escape", "--out", str(tmp_path / "out"), match="must be a name")
+    refused("--sequence", "..", "--out", str(tmp_path / "out"), match="must be a name")
+    # A KITTI copy of the user's own (poses and times of 07, no render stamp) is not overwritten.
+    theirs = tmp_path / "theirs"
+    (theirs / "poses").mkdir(parents=True)
+    (theirs / "poses" / "07.txt").write_bytes(poses)
+    before = sorted(p for p in tmp_path.rglob("*"))
+    refused("--sequence", "07", "--out", str(theirs), match="did not write")
+    assert (theirs / "poses" / "07.txt").read_bytes() == poses
+    # An absurd size is refused before anything is written, so the corrected command then runs.
+    out = tmp_path / "out"
+    refused("--sequence", "07", "--out", str(out), "--size", "100000x100000", match="16 to 4096 px")
+    args = [*base, "--sequence", "07", "--out", str(out)]
+    assert main(args) == 0
+    assert len(list((out / "sequences" / "07" / "image_0").glob("*.png"))) == 2

@@ -101,6 +101,23 @@ pub fn parse_g2o(text: &str) -> Result<PoseGraph> {
     let all_declared = raw_edges
         .iter()
         .all(|(a, b, ..)| vertices.contains_key(a) && vertices.contains_key(b));
+    // Some vertices declared and some not is a broken file, not a KITTI graph without vertices: dead reckoning
+    // would silently replace every declared pose.
+    if !vertices.is_empty() && !all_declared {
+        if let Some((a, b, .., line)) = raw_edges
+            .iter()
+            .find(|(a, b, ..)| !vertices.contains_key(a) || !vertices.contains_key(b))
+        {
+            let missing = if vertices.contains_key(a) { b } else { a };
+            return Err(parse_error(
+                *line,
+                format!(
+                    "EDGE_SE2 joins vertex {missing}, which has no VERTEX_SE2 line while other vertices do; \
+                     declare it (or declare none, and the poses come from dead reckoning along the odometry)"
+                ),
+            ));
+        }
+    }
     let mut ids: BTreeMap<u64, Pose2> = vertices.clone();
     for (a, b, ..) in &raw_edges {
         ids.entry(*a).or_insert(Pose2::IDENTITY);
@@ -228,6 +245,21 @@ EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 0 1 1.5 1 0 0 1 0 1\nEDGE_SE2 2 0 0
         let p = g.poses[2];
         assert!((p.x - (2.0 + 2.0 * 0.5f64.cos())).abs() < 1e-12);
         assert!((p.y - 2.0 * 0.5f64.sin()).abs() < 1e-12);
+    }
+
+    #[test]
+    fn an_edge_to_an_undeclared_vertex_is_an_error_when_others_are_declared() {
+        let err = parse_g2o(
+            "VERTEX_SE2 0 5 5 0\nVERTEX_SE2 1 6 5 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 7 1 0 0 1 0 0 1 0 1\n",
+        )
+        .unwrap_err();
+        assert!(
+            err.to_string().contains("line 4") && err.to_string().contains("vertex 7"),
+            "{err}"
+        );
+        // No vertex declared at all (the KITTI graphs): dead reckoning, as before.
+        let graph = parse_g2o("EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n").unwrap();
+        assert_eq!(graph.len(), 2);
     }
 
     #[test]

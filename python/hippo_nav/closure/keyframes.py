@@ -28,7 +28,7 @@ class ClosureConfig(BaseModel):
 
     model_config = ConfigDict(extra="forbid", frozen=True)
 
-    orb_features: int = Field(500, ge=16, description="ORB corners detected per left image")
+    orb_features: int = Field(500, ge=16, le=20000, description="ORB corners detected per left image")
     keyframe_features: int = Field(300, ge=16, description="strongest stereo features a keyframe keeps")
     ratio_test: float = Field(0.8, gt=0.0, le=1.0, description="Lowe's ratio for descriptor matches")
     ransac_reprojection_px: float = Field(2.0, gt=0.0, description="PnP RANSAC inlier threshold")

@@ -22,7 +22,7 @@ import cv2
 import numpy as np
 
 from hippo_nav.datasets.base import StereoCalibration
-from hippo_nav.io.errors import DatasetError, file_error
+from hippo_nav.io.errors import DatasetError, file_error, read_text
 from hippo_nav.io.poses import matrix_from_quaternion, quaternion_from_matrix
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".pgm", ".ppm", ".bmp", ".tif", ".tiff")
@@ -37,7 +37,7 @@ def read_yaml(path: Path, what: str) -> dict[str, Any]:
 
     if not path.is_file():
         raise DatasetError(f"{path}: {what} not found")
-    text = path.read_text()
+    text = read_text(path, what)
     skipped = 0
     if text.startswith("%YAML:"):
         text, skipped = (text.split("\n", 1)[1] if "\n" in text else ""), 1

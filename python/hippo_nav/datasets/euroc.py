@@ -41,7 +41,7 @@ from hippo_nav.datasets.common import (
     yaml_numbers,
 )
 from hippo_nav.datasets.rectify import StereoRectifier, distortion_kind, rectify_rig
-from hippo_nav.io.errors import DatasetError, file_error
+from hippo_nav.io.errors import DatasetError, file_error, read_text
 from hippo_nav.io.poses import matrix_from_quaternion
 
 
@@ -88,7 +88,7 @@ class CameraFiles:
             raise DatasetError(f"{path}: image list not found (an ASL camera folder has data.csv)")
         stamps: list[int] = []
         files: list[str] = []
-        for number, text in enumerate(path.read_text().splitlines(), start=1):
+        for number, text in enumerate(read_text(path, "CSV file").splitlines(), start=1):
             line = text.strip()
             if not line or line.startswith("#"):
                 continue
@@ -117,7 +117,7 @@ def read_ground_truth(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """EuRoC `state_groundtruth_estimate0/data.csv`: (timestamps s, world_from_body (N, 4, 4))."""
     stamps: list[float] = []
     poses: list[np.ndarray] = []
-    for number, text in enumerate(path.read_text().splitlines(), start=1):
+    for number, text in enumerate(read_text(path, "CSV file").splitlines(), start=1):
         line = text.strip()
         if not line or line.startswith("#"):
             continue

@@ -34,7 +34,7 @@ from hippo_nav.datasets.common import (
     rectified_calibration,
     yaml_number,
 )
-from hippo_nav.io.errors import DatasetError, file_error
+from hippo_nav.io.errors import DatasetError, file_error, read_text
 from hippo_nav.io.poses import read_tum
 
 CALIBRATION_FILE = "calibration.yaml"
@@ -54,7 +54,7 @@ def list_images(folder: Path) -> list[Path]:
 
 def read_times_file(path: Path, count: int) -> np.ndarray:
     stamps: list[float] = []
-    for number, text in enumerate(path.read_text().splitlines(), start=1):
+    for number, text in enumerate(read_text(path, "file").splitlines(), start=1):
         if not text.strip() or text.lstrip().startswith("#"):
             continue
         try:

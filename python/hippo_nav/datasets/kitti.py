@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 
 from hippo_nav.datasets.base import StereoCalibration, StereoFrame, StereoLoader
-from hippo_nav.io.errors import DatasetError, file_error
+from hippo_nav.io.errors import DatasetError, file_error, read_text
 from hippo_nav.io.poses import read_kitti_poses
 
 # Rectified pairs share K; the public calibration files print K to 7 significant digits.
@@ -42,7 +42,7 @@ def read_calibration(calib_path: Path, image_size_px: tuple[int, int]) -> Stereo
     if not calib_path.is_file():
         raise DatasetError(f"{calib_path}: calibration file not found (a KITTI sequence needs calib.txt)")
     matrices: dict[str, np.ndarray] = {}
-    for number, text in enumerate(calib_path.read_text().splitlines(), start=1):
+    for number, text in enumerate(read_text(calib_path, "calibration").splitlines(), start=1):
         if not text.strip():
             continue
         key, sep, rest = text.partition(":")
@@ -86,7 +86,7 @@ def read_times(times_path: Path) -> np.ndarray:
     if not times_path.is_file():
         raise DatasetError(f"{times_path}: timestamps file not found (a KITTI sequence needs times.txt)")
     stamps: list[float] = []
-    for number, text in enumerate(times_path.read_text().splitlines(), start=1):
+    for number, text in enumerate(read_text(times_path, "timestamps file").splitlines(), start=1):
         if not text.strip():
             continue
         try:

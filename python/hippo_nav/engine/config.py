@@ -103,10 +103,14 @@ def _default_grid() -> list[GridConfig]:
 class EngineConfig(_Section):
     """The whole spatial-memory network; every default comes from the Rust engine."""
 
-    tau_s: float = Field(_d("tau_s"), description="membrane time constant τ (s)")
-    max_substep_s: float = Field(_d("max_substep_s"), description="longest integration sub-step (s)")
+    # Bounds that keep a typo from hanging a run: a sub-step of 1e-9 s would mean 10⁸ sub-steps per frame
+    # before the first frame is done (and no Ctrl-C until then).
+    tau_s: float = Field(_d("tau_s"), ge=1e-4, le=10.0, description="membrane time constant τ (s)")
+    max_substep_s: float = Field(
+        _d("max_substep_s"), ge=1e-4, le=1.0, description="longest integration sub-step (s)"
+    )
     torus_period_m: float = Field(
-        _d("torus_period_m"), description="side of the square the torus stands for (m)"
+        _d("torus_period_m"), ge=1.0, le=1e5, description="side of the square the torus stands for (m)"
     )
     hd: HdConfig = Field(default_factory=HdConfig)
     grid: list[GridConfig] = Field(default_factory=_default_grid, min_length=N_MODULES, max_length=N_MODULES)

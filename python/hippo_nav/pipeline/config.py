@@ -46,6 +46,7 @@ from pydantic import (
 from hippo_nav._core import HippoNavError
 from hippo_nav.closure import ClosureConfig
 from hippo_nav.engine import EngineConfig
+from hippo_nav.io import read_text
 from hippo_nav.map import ClosureMode, MapParams
 from hippo_nav.pipeline.parts import REGISTRIES
 from hippo_nav.view_cells import TemplateViewConfig, WordViewConfig
@@ -290,7 +291,7 @@ def load_config(path: str | Path | None) -> PipelineConfig:
         return PipelineConfig()
     path = Path(path)
     try:
-        text = path.read_text()
+        text = read_text(path, "config file")
     except OSError as err:
         raise HippoNavError(f"{path}: cannot read the config file ({err.strerror})") from None
     try:

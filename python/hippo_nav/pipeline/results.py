@@ -34,9 +34,11 @@ closure (a closure every few metres along a revisited street counts the whole st
 from __future__ import annotations
 
 import csv
+import fcntl
 import json
 import logging
 import math
+import os
 import resource
 import sys
 import tempfile
@@ -44,7 +46,7 @@ import time
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 
@@ -68,16 +70,23 @@ RESULT_PATTERNS = (
     "neural_state_*.png",
 )
 """What a run writes into its results folder (and what `--overwrite` clears, nothing else)."""
+RESULTS_MARK = ".hippo_nav_results"
+"""Written into a results folder before the first frame: `--overwrite` clears only a folder that has it, so
+a folder that was never a results folder (a user's own config.json, frames.csv) is never cleared."""
 
 CLOSURE_TRUE_M = 5.0
 CLOSURE_COVER_M = 10.0
 TIMING_WINDOW_FRAMES = 100
 
 
-def prepare_results_folder(out: str | Path, overwrite: bool = False) -> Path:
+def prepare_results_folder(out: str | Path, overwrite: bool = False) -> tuple[Path, IO[str]]:
     """Check (and create) the results folder before the first frame, so a run never finishes its frames
-    only to find it cannot write them. A folder holding files is refused unless `overwrite`, which
-    removes the files an earlier run wrote there (`RESULT_FILES`, `RESULT_PATTERNS`) and nothing else."""
+    only to find it cannot write them; returns it and its lock (keep the file open for the whole run).
+
+    A folder holding files is refused unless `overwrite`, which removes the files an earlier run wrote there
+    (`RESULT_FILES`, `RESULT_PATTERNS`) and nothing else, and only in a folder a run prepared
+    (`RESULTS_MARK`). The mark is also the run's lock (`flock`, exclusive): a second run into the same
+    folder is refused while the first one is writing, before it touches anything."""
     if str(out).strip() == "":
         raise HippoNavError("the results folder is an empty path; give --out a folder, e.g. --out runs/x")
     path = Path(out)
@@ -98,20 +107,41 @@ def prepare_results_folder(out: str | Path, overwrite: bool = False) -> Path:
         raise HippoNavError(
             f"results folder {path} is not writable ({err.strerror}); choose another --out"
         ) from None
-    present = sorted(p.name for p in path.iterdir())
+    present = sorted(p.name for p in path.iterdir() if p.name != RESULTS_MARK)
+    mark = path / RESULTS_MARK
+    if present and not mark.is_file() and overwrite:
+        shown = ", ".join(present[:4]) + (", …" if len(present) > 4 else "")
+        raise HippoNavError(
+            f"--overwrite clears only a hippo_nav results folder, and {path} holds files no run made ({shown}; "
+            f"no {RESULTS_MARK} mark); choose another --out (an older results folder: delete it yourself)"
+        )
     if present and not overwrite:
         shown = ", ".join(present[:4]) + (", …" if len(present) > 4 else "")
         raise HippoNavError(
             f"results folder {path} is not empty ({shown}); choose another --out, or pass --overwrite "
             "to replace an earlier run's results there"
         )
+    if mark.is_symlink():
+        raise HippoNavError(f"{mark} is a symbolic link; a results folder's mark must be a plain file")
+    lock = open(mark, "a+", encoding="utf-8")  # noqa: SIM115 (held open for the whole run)
+    try:
+        fcntl.flock(lock.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        lock.close()
+        raise HippoNavError(
+            f"another run is writing into {path} (it holds {RESULTS_MARK}); wait for it or choose another --out"
+        ) from None
     if overwrite:
         for name in RESULT_FILES:
             (path / name).unlink(missing_ok=True)
         for pattern in RESULT_PATTERNS:
             for old in path.glob(pattern):
                 old.unlink(missing_ok=True)
-    return path
+    lock.seek(0)
+    lock.truncate()
+    lock.write(json.dumps({"hippo_nav_results": 1, "pid": os.getpid()}) + "\n")
+    lock.flush()
+    return path, lock
 
 
 def _segment_lengths(gt: np.ndarray) -> tuple[float, ...]:

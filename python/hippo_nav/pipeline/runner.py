@@ -115,10 +115,15 @@ class Pipeline:
         `interrupted=True` (`metrics["interrupted_by"]` names the signal). Interrupted before the first
         frame, `KeyboardInterrupt` propagates (nothing to write).
         """
-        if out_dir is not None:
-            from hippo_nav.pipeline.results import prepare_results_folder
+        if out_dir is None:
+            return self._run(None)
+        from hippo_nav.pipeline.results import prepare_results_folder
 
-            out_dir = prepare_results_folder(out_dir, overwrite)
+        out_dir, lock = prepare_results_folder(out_dir, overwrite)
+        with lock:  # held until everything is written: a second run into this folder is refused meanwhile
+            return self._run(out_dir)
+
+    def _run(self, out_dir: Path | None) -> RunResult:
         for warning in self.extras.warnings:
             log.warning("%s", warning)
         interrupted = False

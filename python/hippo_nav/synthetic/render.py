@@ -14,6 +14,7 @@ on each pass: light, shadows, shop fronts and posters, parked cars, noise, blur,
 from __future__ import annotations
 
 import json
+import re
 from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -35,6 +36,29 @@ from hippo_nav.synthetic.appearance import (
 from hippo_nav.synthetic.world import StreetWorld
 
 KITTI_FOCAL_RATIO = 718.856 / 1241.0
+MAX_SIDE_PX = 4096
+"""Largest image side a render accepts (KITTI's images are 1241 px wide; 4096² is 16 MB a frame)."""
+
+
+def check_sequence_name(sequence: str) -> str:
+    """The sequence, when it is a plain name (letters, digits, `_`, `-`, `.`; not `.` or `..`): it becomes a
+    folder and a file name under the output root, so a path (`../x`, `a/b`) would write outside it."""
+    name = str(sequence)
+    if not re.fullmatch(r"[A-Za-z0-9_.-]{1,64}", name) or name.strip(".") == "":
+        raise DatasetError(
+            f"sequence {name!r} must be a name (letters, digits, '_', '-', '.'; e.g. 00), not a path"
+        )
+    return name
+
+
+def check_image_size(image_size_px: tuple[int, int]) -> tuple[int, int]:
+    """(width, height) when each side is 16 to `MAX_SIDE_PX` pixels."""
+    width, height = (int(x) for x in image_size_px)
+    if not (16 <= width <= MAX_SIDE_PX and 16 <= height <= MAX_SIDE_PX):
+        raise DatasetError(
+            f"image size {width}x{height}: each side must be 16 to {MAX_SIDE_PX} px (KITTI's is 1241x376)"
+        )
+    return width, height
 
 
 def stereo_projections(
@@ -103,9 +127,10 @@ def render_sequence(
         raise DatasetError("world_from_camera holds NaN or infinity")
     if poses.shape[1] == 3:
         poses = np.concatenate([poses, np.tile([[[0.0, 0.0, 0.0, 1.0]]], (len(poses), 1, 1))], axis=1)
-    width, height = (int(x) for x in image_size_px)
-    if width < 16 or height < 16 or baseline_m <= 0 or frame_rate_hz <= 0:
-        raise DatasetError("image size must be at least 16x16 px, baseline and frame rate positive")
+    sequence = check_sequence_name(sequence)
+    width, height = check_image_size(image_size_px)
+    if not (baseline_m > 0 and frame_rate_hz > 0):
+        raise DatasetError(f"baseline ({baseline_m} m) and frame rate ({frame_rate_hz} Hz) must be positive")
     if timestamps_s is None:
         timestamps_s = np.arange(len(poses)) / frame_rate_hz
     timestamps_s = np.asarray(timestamps_s, dtype=np.float64).reshape(-1)
@@ -283,6 +308,10 @@ def render_kitti(
     from hippo_nav.io.poses import read_kitti_poses
     from hippo_nav.synthetic.trajectories import road_trajectory
 
+    # Everything that can refuse the command is checked before the first write: a refused render must not
+    # leave a stamp that blocks the corrected command.
+    sequence = check_sequence_name(sequence)
+    image_size_px = check_image_size(image_size_px)
     kitti_root = Path(kitti_root)
     pose_path = kitti_root / "poses" / f"{sequence}.txt"
     times_path = kitti_root / "sequences" / sequence / "times.txt"
@@ -316,13 +345,24 @@ def render_kitti(
     }
     if appearance != "same":  # a "same" stamp is the one written before appearances existed
         stamp["appearance"] = appearance
+    if root.resolve() == kitti_root.resolve():
+        raise DatasetError(
+            f"--out {root} is the KITTI root being read: rendering there would overwrite its poses/{sequence}.txt "
+            "and calib.txt with the synthetic rig's; choose another folder"
+        )
     existing = rendered_params(root, sequence)
+    sequence_dir = root / "sequences" / sequence
+    foreign = [root / "poses" / f"{sequence}.txt", sequence_dir / "calib.txt", sequence_dir / "times.txt"]
+    if existing is None and any(path.exists() or path.is_symlink() for path in foreign):
+        raise DatasetError(
+            f"{root}: already holds sequence {sequence} that `hippo-nav render` did not write (no render.json "
+            "beside its images); choose another --out"
+        )
     if existing is not None and existing != stamp:
         raise DatasetError(
             f"{root / 'sequences' / sequence}: holds a render with other settings ({existing}); "
             "choose another --out or delete that folder"
         )
-    sequence_dir = root / "sequences" / sequence
     sequence_dir.mkdir(parents=True, exist_ok=True)
     (sequence_dir / "render.json").write_text(json.dumps(stamp, sort_keys=True))
     return render_sequence(

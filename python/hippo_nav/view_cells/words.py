@@ -61,7 +61,7 @@ class WordViewConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     max_width_px: int = Field(640, ge=64, description="images wider than this are shrunk first (area)")
-    orb_features: int = Field(500, ge=16, description="ORB corners per view")
+    orb_features: int = Field(500, ge=16, le=20000, description="ORB corners per view")
     orb_levels: int = Field(4, ge=1, le=12, description="ORB pyramid levels (scale factor 1.2)")
     min_features: int = Field(30, ge=8, description="views with fewer features are uninformative")
     top_k: int = Field(5, ge=1, description="best-ranked older cells verified (the bag of words only ranks)")

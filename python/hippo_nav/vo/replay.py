@@ -52,7 +52,7 @@ import numpy as np
 
 from hippo_nav.datasets.base import StereoDataset
 from hippo_nav.datasets.kitti import read_times
-from hippo_nav.io import DatasetError, read_kitti_poses, read_tum
+from hippo_nav.io import DatasetError, read_kitti_poses, read_text, read_tum
 from hippo_nav.io.errors import file_error
 from hippo_nav.vo.odometry import VoStep
 
@@ -84,7 +84,7 @@ def guess_pose_format(path: str | Path) -> str:
     if not path.is_file():
         raise DatasetError(f"{path}: pose file not found (check the path)")
     try:
-        lines = path.read_text().splitlines()
+        lines = read_text(path, "pose file").splitlines()
     except (OSError, UnicodeDecodeError) as err:
         raise file_error(path, f"cannot be read as text: {err}") from None
     for number, text in enumerate(lines, start=1):
