@@ -590,6 +590,15 @@ pub fn optimize(graph: &mut PoseGraph, params: &SolverParams) -> Result<SolveRep
     let (work, system) = initial_estimate(graph, params)?;
     let loss = params.robust_loss;
     let (initial_cost, initial_chi2) = objective(&work, &work.poses, &loss);
+    // A vertex or measurement at an extreme value (1e300) overflows the χ²: nothing can be solved, and
+    // "converged" with an infinite χ² would be a lie.
+    if !initial_chi2.is_finite() {
+        return Err(MapError::NonFinite {
+            what:
+                "the pose graph's χ² at its initial poses (a vertex or edge holds an extreme value)",
+            value: initial_chi2,
+        });
+    }
     let (iterations, termination, work) = match system {
         None => (0, Termination::NothingToDo, work),
         Some(system) => {
@@ -656,6 +665,32 @@ mod tests {
         for r in 0..3 {
             assert!((reference[r] - e0[r]).abs() < 1e-12);
         }
+    }
+
+    #[test]
+    fn a_graph_whose_chi2_overflows_is_an_error_and_is_left_as_it_was() {
+        let mut graph = PoseGraph {
+            ids: vec![0, 1],
+            poses: vec![Pose2::new(0.0, 0.0, 0.0), Pose2::new(1e300, 0.0, 0.0)],
+            edges: Vec::new(),
+            fixed: 0,
+        };
+        graph
+            .add_edge(crate::graph::Edge {
+                from: 0,
+                to: 1,
+                from_from_to: Pose2::new(1.0, 0.0, 0.0),
+                information: crate::graph::isotropic_information(1.0, 1.0),
+                kind: EdgeKind::Odometry,
+            })
+            .unwrap();
+        let params = SolverParams {
+            initialization: Initialization::Current,
+            ..SolverParams::default()
+        };
+        let err = optimize(&mut graph, &params).unwrap_err();
+        assert!(err.to_string().contains("extreme value"), "{err}");
+        assert_eq!(graph.poses[1].x, 1e300);
     }
 
     #[test]
