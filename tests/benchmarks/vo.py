@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 from hippo_nav.datasets import KittiOdometry
-from hippo_nav.metrics import ate_rmse, relative_errors_kitti
+from hippo_nav.metrics import KITTI_SEGMENT_LENGTHS_M, ate_rmse, relative_errors_kitti
 from hippo_nav.vo import StereoOdometry, VoParams
 
 SHORT_LENGTHS_M = (10.0, 20.0, 30.0, 40.0, 50.0)
@@ -88,7 +88,7 @@ def main(argv: list[str] | None = None) -> int:
         variants[name] = json.loads(overrides)
     if args.only:
         variants = {name: variants[name] for name in args.only}
-    sets = []  # (label, dataset factory, extra vo overrides, lengths, step)
+    sets = []  # (label, dataset factory, extra vo overrides, segment lengths (None: the devkit's), step)
     if args.data is not None:
         kitti = args.data / "kitti_odometry"
         sets += [
@@ -113,13 +113,7 @@ def main(argv: list[str] | None = None) -> int:
         results[label] = {}
         for name, overrides in variants.items():
             params = VoParams(**{**extra, **overrides})
-            kwargs = {} if lengths is None else {"lengths": lengths}
-            row = measure(
-                dataset,
-                params,
-                kwargs.get("lengths", (100.0, 200.0, 300.0, 400.0, 500.0, 600.0, 700.0, 800.0)),
-                step,
-            )
+            row = measure(dataset, params, lengths or KITTI_SEGMENT_LENGTHS_M, step)
             results[label][name] = row
             print(
                 f"{label:38s} {name:16s} "

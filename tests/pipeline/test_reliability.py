@@ -146,21 +146,28 @@ def disposition():
         signal.signal(number, handler)
 
 
+def _run_signalled_at_frame_8(demo, monkeypatch, out, signame: str, frames: int) -> int:
+    """Exit code of `hippo-nav run` on `frames` demo frames, the process sending itself `signame` while
+    frame 8 loads."""
+
+    def signal_at_frame_8(i):
+        if i == 8:
+            os.kill(os.getpid(), getattr(signal, signame))
+
+    monkeypatch.setattr(
+        "hippo_nav.pipeline.runner.open_input",
+        lambda *a, **k: Frames(demo, frames, on_load=signal_at_frame_8),
+    )
+    return main(["run", "--no-progress", "--no-figures", "--out", str(out)])
+
+
 @pytest.mark.parametrize("signame, code", [("SIGTERM", 143), ("SIGHUP", 129)])
 def test_sigterm_and_sighup_keep_the_frames_processed(
     demo, tmp_path, monkeypatch, disposition, signame, code
 ):
     disposition(signame, signal.SIG_DFL)
-
-    def kill_at_frame_8(i):
-        if i == 8:
-            os.kill(os.getpid(), getattr(signal, signame))
-
-    monkeypatch.setattr(
-        "hippo_nav.pipeline.runner.open_input", lambda *a, **k: Frames(demo, 30, on_load=kill_at_frame_8)
-    )
     out = tmp_path / "out"
-    assert main(["run", "--no-progress", "--no-figures", "--out", str(out)]) == code
+    assert _run_signalled_at_frame_8(demo, monkeypatch, out, signame, frames=30) == code
     metrics = json.loads((out / "metrics.json").read_text())
     # The signal arrives while frame 8 loads, up to two frames ahead of the networks: 6 to 9 frames are done.
     assert metrics["interrupted"] and metrics["interrupted_by"] == signame and 6 <= metrics["frames"] <= 9
@@ -172,16 +179,8 @@ def test_sigterm_and_sighup_keep_the_frames_processed(
 def test_a_signal_started_ignored_stays_ignored(demo, tmp_path, monkeypatch, disposition, signame):
     """`nohup hippo-nav run …` starts with SIGHUP ignored: a closed terminal must not stop the run."""
     disposition(signame, signal.SIG_IGN)
-
-    def hang_up_at_frame_8(i):
-        if i == 8:
-            os.kill(os.getpid(), getattr(signal, signame))
-
-    monkeypatch.setattr(
-        "hippo_nav.pipeline.runner.open_input", lambda *a, **k: Frames(demo, 12, on_load=hang_up_at_frame_8)
-    )
     out = tmp_path / "out"
-    assert main(["run", "--no-progress", "--no-figures", "--out", str(out)]) == 0
+    assert _run_signalled_at_frame_8(demo, monkeypatch, out, signame, frames=12) == 0
     metrics = json.loads((out / "metrics.json").read_text())
     assert not metrics["interrupted"] and metrics["frames"] == 12
     assert signal.getsignal(getattr(signal, signame)) is signal.SIG_IGN
