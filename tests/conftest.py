@@ -5,6 +5,7 @@ lives here. Real data lives outside the project, at ../shared/data or $HIPPO_NAV
 from __future__ import annotations
 
 import os
+import signal
 import threading
 from collections.abc import Callable
 from pathlib import Path
@@ -92,3 +93,18 @@ def rendered(tmp_path_factory: pytest.TempPathFactory) -> KittiOdometry:
         loop_trajectory(12), tmp_path_factory.mktemp("kitti"), "00", image_size_px=(64, 24)
     )
     return KittiOdometry(root, "00")
+
+
+@pytest.fixture
+def disposition():
+    """Set a signal's disposition for one test and put the inherited one back afterwards: the tests must not
+    depend on how pytest was started (under `nohup` SIGHUP arrives ignored)."""
+    inherited = {}
+
+    def set_to(signame: str, handler) -> None:
+        number = getattr(signal, signame)
+        inherited.setdefault(number, signal.signal(number, handler))
+
+    yield set_to
+    for number, handler in inherited.items():
+        signal.signal(number, handler)

@@ -1,15 +1,25 @@
-"""The Rust cores' default parameters, the single source of every default the Python models show.
+"""The Rust cores' default parameters, the single source of every default the Python models show, and the
+base class of every config section.
 
 Each core serialises its `Params::default()` as JSON (`_core.default_params_json(section)`); the pydantic
 models (`EngineConfig`, `MapParams`, `TemplateViewConfig`) take their field defaults from here, so a default
 is written once, in Rust, and a test checks that the Python models agree with it.
+
+`ConfigSection` is what every section of a config file (`hippo_nav.pipeline.PipelineConfig`) derives from:
+unknown keys are errors, NaN and ±infinity are refused (JSON has no such numbers: they would reach the Rust
+cores as `null`), and a number must be given as a number (`true` or `"12"` for a count is an error, not 1 or
+12). Ranges are declared on each field (`Field(ge=…, le=…)`), so a bad value is refused in Python, with the
+setting's path, before anything reaches Rust.
 """
 
 from __future__ import annotations
 
 import json
+import types
 from functools import cache
-from typing import Any
+from typing import Any, Union, get_args, get_origin
+
+from pydantic import BaseModel, ConfigDict, ValidationInfo, field_validator
 
 from hippo_nav import _core
 
@@ -30,3 +40,45 @@ def rust_default(section: str, *path: str | int) -> Any:
     for key in path:
         value = value[key]
     return value
+
+
+def _wrong_kind(annotation: Any, value: Any) -> str | None:
+    """Why `value` is not of the kind `annotation` asks for (a bool, int or float, or a list, tuple or
+    optional of them), or None. Only what pydantic's lax mode would silently convert is caught here:
+    `true` for a number, a number for a switch, a string for either."""
+    if value is None:
+        return None
+    origin = get_origin(annotation)
+    if origin in (Union, types.UnionType):
+        reasons = [_wrong_kind(a, value) for a in get_args(annotation) if a is not type(None)]
+        return None if not reasons or None in reasons else reasons[0]
+    if origin in (list, tuple) and isinstance(value, (list, tuple)):
+        inner = [a for a in get_args(annotation) if a is not Ellipsis]
+        for i, item in enumerate(value):
+            kind = inner[min(i, len(inner) - 1)] if inner else Any
+            reason = _wrong_kind(kind, item)
+            if reason is not None:
+                return f"item {i} ({item!r}) {reason}"
+        return None
+    if annotation is bool and not isinstance(value, bool):
+        return f"must be true or false, not {type(value).__name__}"
+    if annotation in (int, float) and isinstance(value, (bool, str, bytes)):
+        what = "an integer" if annotation is int else "a number"
+        return f"must be {what}, not {type(value).__name__}"
+    return None
+
+
+class ConfigSection(BaseModel):
+    """Base of every config section (module doc): unknown keys, NaN/±inf and numbers given as text or
+    booleans are errors naming the field."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False)
+
+    @field_validator("*", mode="before")
+    @classmethod
+    def _numbers_are_numbers(cls, value: Any, info: ValidationInfo) -> Any:
+        field = cls.model_fields.get(str(info.field_name))
+        reason = None if field is None else _wrong_kind(field.annotation, value)
+        if reason is not None:
+            raise ValueError(reason)
+        return value

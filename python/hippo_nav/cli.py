@@ -349,6 +349,9 @@ def _run(args: argparse.Namespace) -> int:
     if result.interrupted:
         print(f"interrupted after {result.metrics['frames']} frames; results so far written to {args.out}")
         return _SIGNAL_EXIT.get(result.metrics.get("interrupted_by", "SIGINT"), 130)
+    if result.metrics.get("interrupted_by"):  # every frame, but a signal during the correction or the figures
+        print(f"interrupted after the last frame; results written to {args.out} (see metrics.json)")
+        return _SIGNAL_EXIT.get(result.metrics["interrupted_by"], 130)
     print(f"results written to {args.out}")
     if args.video:
         print(f"video written to {Path(args.out) / 'mapping.mp4'}")
@@ -508,12 +511,10 @@ def _vocabulary(args: argparse.Namespace) -> int:
 def _read_gray(path: Path) -> Any:
     import cv2
 
-    from hippo_nav._core import HippoNavError
+    from hippo_nav.datasets.common import read_image_file
 
-    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    if image is None:
-        raise HippoNavError(f"{path}: not a readable image; remove it or convert it to PNG")
-    return image
+    # Decoded from its bytes: any file name works (OpenCV's own reader crashes on some), sizes are checked.
+    return read_image_file(path, cv2.IMREAD_GRAYSCALE)
 
 
 def _summary(metrics: dict) -> dict:

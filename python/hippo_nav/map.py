@@ -25,7 +25,7 @@ from enum import Enum
 from pathlib import Path
 from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 
 from hippo_nav._core import (
     CorrectionReport,
@@ -35,7 +35,7 @@ from hippo_nav._core import (
     RelaxationReport,
     SolveReport,
 )
-from hippo_nav._defaults import rust_default
+from hippo_nav._defaults import ConfigSection, rust_default
 
 __all__ = [
     "AmbiguityPolicy",
@@ -81,11 +81,11 @@ def _default(name: str) -> Any:
     return rust_default("map", name)
 
 
-class MapParams(BaseModel):
+class MapParams(ConfigSection):
     """Creation, closure and correction settings of the experience map (defaults come from the Rust
     engine; their meaning is documented on `hippo_map::MapParams` and in docs/map.md)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(frozen=True)
 
     place_threshold_rad: float = Field(_default("place_threshold_rad"), gt=0)
     heading_threshold_rad: float = Field(_default("heading_threshold_rad"), gt=0)
@@ -99,9 +99,9 @@ class MapParams(BaseModel):
     loop_gate_yaw_rad_per_m: float = Field(_default("loop_gate_yaw_rad_per_m"), ge=0)
     max_loop_chi2: float = Field(_default("max_loop_chi2"), gt=0)
     online_correction: OnlineCorrection = OnlineCorrection(_default("online_correction"))
-    online_relaxation_passes: int = Field(_default("online_relaxation_passes"), ge=0)
+    online_relaxation_passes: int = Field(_default("online_relaxation_passes"), ge=0, le=1_000_000)
     relaxation_gain: float = Field(_default("relaxation_gain"), gt=0, lt=1)
-    online_max_iterations: int = Field(_default("online_max_iterations"), ge=1)
+    online_max_iterations: int = Field(_default("online_max_iterations"), ge=1, le=100_000)
     link_sigma_xy_m: float = Field(_default("link_sigma_xy_m"), gt=0)
     link_sigma_yaw_rad: float = Field(_default("link_sigma_yaw_rad"), gt=0)
     odometry_sigma_xy_per_m: float = Field(_default("odometry_sigma_xy_per_m"), ge=0)

@@ -204,10 +204,20 @@ def test_bad_motion_inputs_raise_clear_errors_and_keep_the_state(settled: Spatia
 
 
 def test_bad_configs_and_views_raise_clear_errors(settled: SpatialMemory):
-    with pytest.raises(hippo_nav.HippoNavError, match="hd.n_theta"):
-        SpatialMemory(EngineConfig.model_validate({"hd": {"n_theta": 0}}))
-    with pytest.raises(hippo_nav.HippoNavError, match="max_substep_s"):
-        SpatialMemory(EngineConfig.model_validate({"max_substep_s": 1.0}))
+    # Refused by the config model, naming the field; and by the engine for a config made without checks.
+    default = EngineConfig()
+    for data, unchecked, field in (
+        (
+            {"hd": {"n_theta": 0}},
+            default.model_copy(update={"hd": default.hd.model_copy(update={"n_theta": 0})}),
+            "hd.n_theta",
+        ),
+        ({"max_substep_s": 1.0}, default.model_copy(update={"max_substep_s": 1.0}), "max_substep_s"),
+    ):
+        with pytest.raises(ValueError, match=field):
+            EngineConfig.model_validate(data)
+        with pytest.raises(hippo_nav.HippoNavError, match=f"invalid engine config: engine.{field} = "):
+            SpatialMemory(unchecked)
     with pytest.raises(hippo_nav.HippoNavError, match="dtype"):
         SpatialMemory(dtype="float16")
     with pytest.raises(ValueError):

@@ -131,21 +131,6 @@ def test_results_are_written_when_a_metric_is_unavailable(demo, tmp_path, how):
 
 
 # --- signals --------------------------------------------------------------------------------------------
-@pytest.fixture
-def disposition():
-    """Set a signal's disposition for one test and put the inherited one back afterwards: the tests must not
-    depend on how pytest was started (under `nohup` SIGHUP arrives ignored)."""
-    inherited = {}
-
-    def set_to(signame: str, handler) -> None:
-        number = getattr(signal, signame)
-        inherited.setdefault(number, signal.signal(number, handler))
-
-    yield set_to
-    for number, handler in inherited.items():
-        signal.signal(number, handler)
-
-
 def _run_signalled_at_frame_8(demo, monkeypatch, out, signame: str, frames: int) -> int:
     """Exit code of `hippo-nav run` on `frames` demo frames, the process sending itself `signame` while
     frame 8 loads."""
@@ -314,8 +299,10 @@ def test_engine_arguments_out_of_range_are_named():
     patterns = sm.view_patterns()
     with pytest.raises(HippoNavError, match="view strength"):
         sm.step(0.0, 1.0, 0.1, ViewPatterns(patterns.hd_profile, patterns.grid_layer2, strength=-1.0))
-    with pytest.raises(HippoNavError, match="settle_s"):
-        SpatialMemory(EngineConfig(settle_s=-0.1))
+    with pytest.raises(ValueError, match="settle_s"):
+        EngineConfig(settle_s=-0.1)
+    with pytest.raises(HippoNavError, match="engine.settle_s = -0.1"):
+        SpatialMemory(EngineConfig().model_copy(update={"settle_s": -0.1}))
     state = sm.state()
     state["place"] = -state["place"] - 1.0
     before = sm.place_activity()
@@ -390,3 +377,134 @@ def test_a_text_input_that_is_not_utf8_is_one_line_naming_the_file(demo, tmp_pat
         assert main([*args, "--out", str(tmp_path / f"out_{name}")]) == 2
         err = _one_line_error(capsys)
         assert str(sequence / name) in err and "not UTF-8" in err
+
+
+def test_config_errors_name_the_setting_its_value_and_bound_not_a_json_column(tmp_path, capsys):
+    """The engine's settings are checked in Python before the Rust engine sees them; every float refuses NaN
+    (tests/pipeline/test_config_validation.py goes through every setting)."""
+    cfg = tmp_path / "c.json"
+    run = ["run", "--no-progress", "--stop", "3", "--config", str(cfg)]
+    for config, phrases in (
+        (
+            '{"engine": {"hd": {"n_theta": -3}}}',
+            ["engine.hd.n_theta:", "(got -3)", "greater than or equal to 4"],
+        ),
+        (
+            '{"views": {"novelty_threshold": NaN}}',
+            ["views.novelty_threshold: Input should be a finite number"],
+        ),
+        (
+            '{"map": {"loop_gate_m": Infinity}}',
+            ["map.loop_gate_m: Input should be a finite number (got inf)"],
+        ),
+        ('{"vo": {"max_features": "500"}}', ["vo.max_features: must be an integer, not str (got '500')"]),
+        ('{"engine": {"grid": {"dorsal": {"n_theta": 32}}}}', ["grid[2] (dorsal).n_theta = 32 differs"]),
+    ):
+        cfg.write_text(config)
+        assert main([*run, "--out", str(tmp_path / "x")]) == 2
+        err = _one_line_error(capsys)
+        assert str(cfg) in err and "line 1 column" not in err and all(p in err for p in phrases), err
+    # The torus size given once for every grid module: the place torus follows, and the run goes on.
+    cfg.write_text('{"engine": {"grid": {"n_theta": 32}}, "output": {"figures": false}}')
+    assert main([*run, "--out", str(tmp_path / "torus")]) == 0
+    resolved = json.loads((tmp_path / "torus" / "config.json").read_text())["engine"]
+    assert [g["n_theta"] for g in resolved["grid"]] == [32, 32, 32] and resolved["place"]["n_theta"] == 32
+
+
+# --- inputs of absurd size: refused from their size, before they are read ----------------------------------------
+def _sparse(path, n_bytes: int, head: bytes = b"") -> None:
+    """A file of `n_bytes` that takes no disk space (a hole after `head`)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "wb") as f:
+        f.write(head)
+        f.truncate(n_bytes)
+
+
+def _tiny_kitti(root) -> None:
+    sequence = root / "sequences" / "00"
+    for camera in ("image_0", "image_1"):
+        (sequence / camera).mkdir(parents=True)
+        for i in range(2):
+            cv2.imwrite(str(sequence / camera / f"{i:06d}.png"), np.full((24, 64), 40 * i + 20, np.uint8))
+    k = "40 0 31.5 {} 0 40 11.5 0 0 0 1 0"
+    (sequence / "calib.txt").write_text(f"P0: {k.format(0)}\nP1: {k.format(-20)}\n")
+    (sequence / "times.txt").write_text("0.0\n0.1\n")
+
+
+def test_oversized_text_inputs_are_one_line_naming_file_and_size(tmp_path, capsys):
+    from hippo_nav.io.errors import MAX_DATA_FILE_BYTES, MAX_SETTINGS_FILE_BYTES
+
+    cfg = tmp_path / "big.json"
+    _sparse(cfg, MAX_SETTINGS_FILE_BYTES + 1, b'{"seed": 1, ')
+    assert main(["run", "--no-progress", "--config", str(cfg), "--out", str(tmp_path / "a")]) == 2
+    err = _one_line_error(capsys)
+    assert (
+        f"{cfg}: the config file is 16.0 MiB ({MAX_SETTINGS_FILE_BYTES + 1} bytes)" in err
+        and "at most" in err
+    )
+    for name, size in (("calib.txt", MAX_SETTINGS_FILE_BYTES + 1), ("times.txt", MAX_DATA_FILE_BYTES + 1)):
+        root = tmp_path / f"kitti_{name}"
+        _tiny_kitti(root)
+        _sparse(root / "sequences" / "00" / name, size, b"0.0\n")
+        args = ["run", "--kitti", str(root), "--sequence", "00", "--no-progress", "--out", str(root / "o")]
+        assert main(args) == 2
+        err = _one_line_error(capsys)
+        assert str(root / "sequences" / "00" / name) in err and f"({size} bytes)" in err, err
+    replayed = tmp_path / "poses.txt"
+    _sparse(replayed, MAX_DATA_FILE_BYTES + 1)
+    args = ["run", "--no-progress", "--stop", "3", "--odometry", str(replayed), "--out", str(tmp_path / "r")]
+    assert main(args) == 2
+    assert str(replayed) in _one_line_error(capsys)
+
+
+def test_an_oversized_file_is_not_read_into_memory(tmp_path):
+    import tracemalloc
+
+    from hippo_nav.io.errors import DatasetError, read_text
+
+    big = tmp_path / "times.txt"
+    _sparse(big, 300 * 2**20, b"0.0\n")
+    tracemalloc.start()
+    try:
+        with pytest.raises(DatasetError, match=r"times.txt: the timestamps file is 300.0 MiB"):
+            read_text(big, "timestamps file")
+        _, peak = tracemalloc.get_traced_memory()
+    finally:
+        tracemalloc.stop()
+    assert peak < 2**20
+    # A device or pipe has no size to check: it is read up to the limit, never further.
+    with pytest.raises(DatasetError, match=r"/dev/zero: the stream holds more than 64.0 KiB"):
+        read_text("/dev/zero", "stream", 64 * 2**10)
+
+
+def _png_header(width: int, height: int) -> bytes:
+    """A PNG that declares width × height gray pixels and holds one compressed row: 100 bytes on disk."""
+    import struct
+    import zlib
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+    header = struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)
+    pixels = zlib.compress(b"\0" * (min(width, 4096) + 1))
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", header) + chunk(b"IDAT", pixels) + chunk(b"IEND", b"")
+
+
+@pytest.mark.parametrize("side", [100_000, 9_000])
+def test_an_image_declaring_an_absurd_size_is_refused_before_decoding(tmp_path, capsys, side):
+    """A 100-byte PNG can declare 100 000 × 100 000 px (10 GB once decoded): refused from its header, in one
+    line naming the file, whether OpenCV would have raised, allocated or given up."""
+    from hippo_nav.datasets.common import decode_image_bytes
+    from hippo_nav.io.errors import DatasetError
+
+    root = tmp_path / "kitti"
+    _tiny_kitti(root)
+    bomb = root / "sequences" / "00" / "image_0" / "000000.png"
+    bomb.write_bytes(_png_header(side, side))
+    args = ["run", "--kitti", str(root), "--sequence", "00", "--no-progress", "--out", str(root / "o")]
+    assert main(args) == 2
+    err = _one_line_error(capsys)
+    assert f"{bomb}: the image declares {side}x{side} px" in err, err
+    # The same for an image inside a bag (a CompressedImage message).
+    with pytest.raises(DatasetError, match=rf"bag /left: the image declares {side}x{side} px"):
+        decode_image_bytes(_png_header(side, side), "bag /left")

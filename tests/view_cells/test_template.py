@@ -273,8 +273,11 @@ def test_bad_input_raises_clear_errors() -> None:
         ({"coarse_rows": 0}, "coarse_rows"),
     ]
     for fields, message in bad_configs:
+        # Refused by the config model, naming the field; and by the Rust cells, for a config made unchecked.
+        with pytest.raises(ValidationError, match=message.split(".*")[0]):
+            TemplateViewConfig(**fields)
         with pytest.raises(HippoNavError, match=message):
-            TemplateViewCells(TemplateViewConfig(**fields))
+            TemplateViewCells(TemplateViewConfig.model_construct(**fields))
     with pytest.raises(ValidationError):
         TemplateViewConfig(width=64)  # type: ignore[call-arg]
     with pytest.raises(HippoNavError, match="invalid view-cell config"):

@@ -197,7 +197,7 @@ def test_a_vocabulary_trained_on_a_folder_of_images_is_used_by_a_run(tmp_path, c
     assert "not a folder" in capsys.readouterr().err
     (folder / "broken.png").write_bytes(b"\x89PNG broken")
     assert main(["vocabulary", "--out", str(tmp_path / "x.voc"), "--images", str(folder)]) == 2
-    assert "broken.png: not a readable image" in capsys.readouterr().err
+    assert "broken.png: image is corrupt or not a format OpenCV can read" in capsys.readouterr().err
 
 
 def _revisit_images(level: str, lateral_m: float, heading_deg: float, size=(640, 192)):

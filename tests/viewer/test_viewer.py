@@ -5,13 +5,16 @@ from __future__ import annotations
 
 import argparse
 import re
+import socket
 import sys
+from pathlib import Path
 from types import SimpleNamespace
 
 import cv2
+import hippo_nav.viewer.rerun as rerun_viewer
 import numpy as np
 import pytest
-from hippo_nav import SpatialMemory
+from hippo_nav import HippoNavError, SpatialMemory
 from hippo_nav.cli import build_parser, main
 from hippo_nav.datasets import KittiOdometry
 from hippo_nav.pipeline import FrameEvent, NetworkActivity, Pipeline, config_from_dict
@@ -78,6 +81,7 @@ class FakeRecording:
         self.sink: tuple | None = None
         self.blueprints: list[Logged] = []
         self.closed = False
+        self.flush_timeouts_s: list[float] = []
 
     def save(self, path) -> None:
         self.sink = ("save", str(path))
@@ -97,8 +101,8 @@ class FakeRecording:
     def send_blueprint(self, blueprint: Logged) -> None:
         self.blueprints.append(blueprint)
 
-    def flush(self) -> None:
-        pass
+    def flush(self, timeout_sec: float = 1e38) -> None:
+        self.flush_timeouts_s.append(timeout_sec)
 
     def disconnect(self) -> None:
         self.closed = True
@@ -124,10 +128,14 @@ def observed(tmp_path_factory):
     video_path = tmp_path_factory.mktemp("video") / "mapping.mp4"
     video = VideoObserver(video_path, every=5)
     rr = FakeRerun()
-    rerun = RerunObserver("run.rrd", rr=rr)
+    rrd = tmp_path_factory.mktemp("rerun") / "run.rrd"
+    rerun = RerunObserver(rrd, rr=rr)
     pipeline = Pipeline(demo(), observers=[video, rerun])
     result = pipeline.run()
-    return SimpleNamespace(pipeline=pipeline, result=result, video=video, rec=rr.recordings[0], rerun=rerun)
+    rerun.close()
+    return SimpleNamespace(
+        pipeline=pipeline, result=result, video=video, rec=rr.recordings[0], rerun=rerun, rrd=rrd
+    )
 
 
 # ------------------------------------------------------------------------------------------------
@@ -155,7 +163,14 @@ def test_video_refuses_a_bad_frame_interval(tmp_path):
 
 def test_rerun_observer_logs_every_frame_on_the_frame_timeline(observed):
     rec, pipeline = observed.rec, observed.pipeline
-    assert rec.sink == ("save", "run.rrd")
+    # Recorded under a fresh hidden name beside the target, renamed to it when closed (never a half file
+    # at the target's name, never a write through a link there).
+    kind, recorded = rec.sink
+    assert kind == "save" and Path(recorded).parent == observed.rrd.parent
+    assert Path(recorded).name.startswith(".run.rrd.") and not Path(recorded).exists()
+    assert observed.rrd.is_file() and rec.closed
+    # Every flush is bounded: a viewer that stops taking data never holds a finished run.
+    assert rec.flush_timeouts_s and max(rec.flush_timeouts_s) <= 60
     frames = [int(time["frame"]) for time, _ in rec.at("camera/left")]
     assert frames == [f.frame_index for f in pipeline.record.frames] == list(range(FRAMES))
     logged = {name for _, name, _, _ in rec.logs}
@@ -223,10 +238,45 @@ def test_blocks_relog_only_what_changed():
 
 
 def test_rerun_targets(monkeypatch):
+    monkeypatch.setenv("DISPLAY", ":0")
     rr = FakeRerun()
     RerunObserver(rr=rr)
     RerunObserver("rerun+http://127.0.0.1:9876/proxy", rr=rr)
     assert [r.sink for r in rr.recordings] == [("spawn",), ("connect", "rerun+http://127.0.0.1:9876/proxy")]
+
+
+def test_rerun_viewer_without_a_display_is_refused_before_the_run(monkeypatch):
+    """Spawning the viewer on a machine without a display used to hang the finished run in its flush."""
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    monkeypatch.setattr(sys, "platform", "linux")
+    with socket.socket() as s:  # a port where no viewer listens
+        s.bind(("127.0.0.1", 0))
+        free_port = s.getsockname()[1]
+    monkeypatch.setattr(rerun_viewer, "VIEWER_PORT", free_port)
+    rr = FakeRerun()
+    with pytest.raises(HippoNavError, match="no display.*--rerun FILE.rrd"):
+        RerunObserver(rr=rr)
+    assert rr.recordings[0].sink is None  # nothing spawned
+    # A viewer already listening (e.g. `rerun --serve-web`) is used even without a display.
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen()
+        monkeypatch.setattr(rerun_viewer, "VIEWER_PORT", server.getsockname()[1])
+        RerunObserver(rr=rr)
+    assert rr.recordings[1].sink == ("spawn",)
+
+
+def test_rerun_flush_that_fails_does_not_stop_the_run(caplog):
+    rr = FakeRerun()
+    observer = RerunObserver("rerun+http://127.0.0.1:9/proxy", rr=rr)
+
+    def refuse(timeout_sec: float = 1e38) -> None:
+        raise RuntimeError("gRPC has been unable to connect")
+
+    observer.rec.flush = refuse
+    observer.close()
+    assert "did not take the last data" in caplog.text and observer.rec.closed
 
 
 # ------------------------------------------------------------------------------------------------

@@ -6,7 +6,7 @@ pub fn positive(name: &'static str, value: f64) -> Result<()> {
         Ok(())
     } else {
         Err(AttractorError::BadParameter {
-            name,
+            name: name.into(),
             value: value.to_string(),
             why: "must be finite and > 0".into(),
         })
@@ -18,7 +18,7 @@ pub fn non_negative(name: &'static str, value: f64) -> Result<()> {
         Ok(())
     } else {
         Err(AttractorError::BadParameter {
-            name,
+            name: name.into(),
             value: value.to_string(),
             why: "must be finite and ≥ 0".into(),
         })
@@ -30,7 +30,7 @@ pub fn non_positive(name: &'static str, value: f64) -> Result<()> {
         Ok(())
     } else {
         Err(AttractorError::BadParameter {
-            name,
+            name: name.into(),
             value: value.to_string(),
             why: "must be finite and ≤ 0 (it is the uniform inhibition)".into(),
         })
@@ -42,9 +42,22 @@ pub fn in_unit_interval(name: &'static str, value: f64) -> Result<()> {
         Ok(())
     } else {
         Err(AttractorError::BadParameter {
-            name,
+            name: name.into(),
             value: value.to_string(),
             why: "must lie in [0, 1]".into(),
+        })
+    }
+}
+
+/// A finite value in `[min, max]` (bounds that keep a typo from hanging a run or allocating gigabytes).
+pub fn in_range(name: &'static str, value: f64, min: f64, max: f64) -> Result<()> {
+    if value.is_finite() && (min..=max).contains(&value) {
+        Ok(())
+    } else {
+        Err(AttractorError::BadParameter {
+            name: name.into(),
+            value: value.to_string(),
+            why: format!("must lie in [{min}, {max}]"),
         })
     }
 }
@@ -54,7 +67,7 @@ pub fn size(name: &'static str, value: usize, min: usize, max: usize) -> Result<
         Ok(())
     } else {
         Err(AttractorError::BadParameter {
-            name,
+            name: name.into(),
             value: value.to_string(),
             why: format!("must be between {min} and {max}"),
         })
@@ -86,7 +99,7 @@ pub fn array_len(name: &'static str, got: usize, expected: usize, shape: String)
 pub fn array_non_negative<T: crate::real::Real>(name: &'static str, values: &[T]) -> Result<()> {
     match values.iter().position(|v| *v < T::zero()) {
         Some(index) => Err(AttractorError::BadParameter {
-            name,
+            name: name.into(),
             value: format!("a negative value at flat index {index}"),
             why: "activities are firing rates, ≥ 0".into(),
         }),

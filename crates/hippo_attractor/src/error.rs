@@ -6,8 +6,8 @@ pub enum AttractorError {
     /// A parameter outside its range (the shape every core crate uses for parameter errors).
     #[error("invalid parameter `{name}` = {value}: {why}")]
     BadParameter {
-        /// The parameter, as the config names it.
-        name: &'static str,
+        /// The parameter, as the config names it (`hd.n_theta`, `grid[2].k`).
+        name: String,
         /// Its value as given.
         value: String,
         /// What it must be.
@@ -62,6 +62,23 @@ pub enum AttractorError {
         "the network state diverged (non-finite activity); reduce `max_substep_s` or the gains"
     )]
     Diverged,
+}
+
+impl AttractorError {
+    /// The error of grid module `index`'s own check, naming the module: `grid.k` becomes `grid[2].k`.
+    pub fn in_module(self, index: usize) -> Self {
+        match self {
+            AttractorError::BadParameter { name, value, why } => AttractorError::BadParameter {
+                name: match name.strip_prefix("grid.") {
+                    Some(field) => format!("grid[{index}].{field}"),
+                    None => name,
+                },
+                value,
+                why,
+            },
+            other => other,
+        }
+    }
 }
 
 /// The result of everything that can fail in this crate.

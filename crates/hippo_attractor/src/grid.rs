@@ -42,6 +42,7 @@ use std::f64::consts::TAU;
 
 /// Parameters of one grid-by-velocity module (docs/spec.md §3); defaults from `SpatialMemoryParams`.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct GridParams {
     /// Wave number k: bumps per torus axis (1, 2, 4 in the paper).
     pub k: usize,
@@ -66,6 +67,10 @@ pub struct GridParams {
     /// Gain of the velocity-pinning feedback (0 disables it; see `step`).
     pub pin_gain: f64,
 }
+
+/// Units of one module at most (`n_theta² · n_nu²`; the default has 331 776): a typo must not allocate
+/// gigabytes.
+pub const MAX_GRID_UNITS: usize = 1 << 22;
 
 impl GridParams {
     /// Documented defaults for module `k` (see docs/model.md for how they were chosen).
@@ -99,9 +104,15 @@ impl GridParams {
         check::in_unit_interval("grid.input_tuning", self.input_tuning)?;
         check::positive("grid.input_sigma", self.input_sigma)?;
         check::in_unit_interval("grid.pin_gain", self.pin_gain)?;
+        check::size(
+            "grid.units (n_theta² · n_nu²)",
+            self.n_units(),
+            1,
+            MAX_GRID_UNITS,
+        )?;
         if self.n_theta % self.k != 0 || self.n_theta / self.k < 2 {
             return Err(AttractorError::BadParameter {
-                name: "grid.n_theta",
+                name: "grid.n_theta".into(),
                 value: self.n_theta.to_string(),
                 why: format!(
                     "must be a multiple of k = {} with at least 2 units per bump cell",

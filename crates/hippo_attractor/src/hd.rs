@@ -15,6 +15,7 @@ use std::f64::consts::TAU;
 
 /// Parameters of the head-direction-by-velocity ring (docs/spec.md §2).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct HdParams {
     /// Units around the ring (Nθ).
     pub n_theta: usize,
@@ -37,6 +38,9 @@ pub struct HdParams {
     /// Gain of the velocity-pinning feedback (0 disables it; see [`HdRing::step`]).
     pub pin_gain: f64,
 }
+
+/// Units of the ring at most (`n_theta · n_nu`; the default has 1 920): a typo must not allocate gigabytes.
+pub const MAX_HD_UNITS: usize = 1 << 20;
 
 impl Default for HdParams {
     fn default() -> Self {
@@ -64,6 +68,7 @@ impl HdParams {
     pub fn validate(&self) -> Result<()> {
         check::size("hd.n_theta", self.n_theta, 4, 1 << 16)?;
         check::size("hd.n_nu", self.n_nu, 1, 1024)?;
+        check::size("hd.units (n_theta · n_nu)", self.n_units(), 1, MAX_HD_UNITS)?;
         check::positive("hd.nu_max", self.nu_max)?;
         check::positive("hd.lambda", self.lambda)?;
         check::non_positive("hd.j0", self.j0)?;

@@ -16,6 +16,7 @@ use std::f64::consts::TAU;
 
 /// Parameters of the CA3 place torus (docs/spec.md §5).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct PlaceParams {
     /// Units per torus axis (N).
     pub n_theta: usize,

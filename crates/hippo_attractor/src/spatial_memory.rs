@@ -29,6 +29,7 @@ pub const N_MODULES: usize = 3;
 
 /// Parameters of the whole network; `Default` is the single source of every default.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct SpatialMemoryParams {
     /// Membrane time constant τ of every network (s).
     pub tau_s: f64,
@@ -73,11 +74,13 @@ impl Default for SpatialMemoryParams {
 impl SpatialMemoryParams {
     /// Check every parameter; the error names the first bad one.
     pub fn validate(&self) -> Result<()> {
-        check::positive("tau_s", self.tau_s)?;
-        check::positive("max_substep_s", self.max_substep_s)?;
+        // Bounds that keep a typo from hanging a run: a sub-step of 1e-9 s would mean 10⁸ sub-steps per
+        // frame, a settle of hours as many before the first frame.
+        check::in_range("tau_s", self.tau_s, 1e-4, 10.0)?;
+        check::in_range("max_substep_s", self.max_substep_s, 1e-4, 1.0)?;
         if self.max_substep_s > 5.0 * self.tau_s {
             return Err(AttractorError::BadParameter {
-                name: "max_substep_s",
+                name: "max_substep_s".into(),
                 value: self.max_substep_s.to_string(),
                 why: format!(
                     "sub-steps longer than 5τ ({} s) do not resolve the attractor dynamics",
@@ -85,16 +88,16 @@ impl SpatialMemoryParams {
                 ),
             });
         }
-        check::positive("torus_period_m", self.torus_period_m)?;
+        check::in_range("torus_period_m", self.torus_period_m, 1.0, 1e5)?;
         check::in_unit_interval("bump_threshold_frac", self.bump_threshold_frac)?;
-        check::non_negative("settle_s", self.settle_s)?;
+        check::in_range("settle_s", self.settle_s, 0.0, 10.0)?;
         self.hd.validate()?;
         self.place.validate()?;
-        for g in &self.grid {
-            g.validate()?;
+        for (index, g) in self.grid.iter().enumerate() {
+            g.validate().map_err(|e| e.in_module(index))?;
             if g.n_theta != self.place.n_theta {
                 return Err(AttractorError::BadParameter {
-                    name: "grid.n_theta",
+                    name: format!("grid[{index}].n_theta"),
                     value: g.n_theta.to_string(),
                     why: format!(
                         "must equal place.n_theta = {} (one shared torus)",

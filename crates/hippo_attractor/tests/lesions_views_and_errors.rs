@@ -129,7 +129,7 @@ fn bad_parameters_are_rejected_with_the_parameter_named() {
                 p.grid[1].n_nu = 0;
                 p
             },
-            "grid.n_nu",
+            "grid[1].n_nu",
         ),
         (
             SpatialMemoryParams {
@@ -144,7 +144,7 @@ fn bad_parameters_are_rejected_with_the_parameter_named() {
                 p.grid[0].jk = f64::INFINITY;
                 p
             },
-            "grid.jk",
+            "grid[0].jk",
         ),
         (
             {
@@ -152,7 +152,7 @@ fn bad_parameters_are_rejected_with_the_parameter_named() {
                 p.grid[2].j0 = 5.0;
                 p
             },
-            "grid.j0",
+            "grid[2].j0",
         ),
         (
             SpatialMemoryParams {
@@ -167,7 +167,43 @@ fn bad_parameters_are_rejected_with_the_parameter_named() {
                 p.grid[0].n_theta = 32;
                 p
             },
-            "grid.n_theta",
+            "grid[0].n_theta",
+        ),
+        // Sizes that would allocate gigabytes, and times that would hang the first frame.
+        (
+            {
+                let mut p = SpatialMemoryParams::default();
+                p.hd.n_theta = 1 << 16;
+                p.hd.n_nu = 1024;
+                p
+            },
+            "hd.units",
+        ),
+        (
+            {
+                let mut p = SpatialMemoryParams::default();
+                for g in &mut p.grid {
+                    g.n_theta = 1024;
+                    g.n_nu = 64;
+                }
+                p.place.n_theta = 1024;
+                p
+            },
+            "grid[0].units",
+        ),
+        (
+            SpatialMemoryParams {
+                settle_s: 1e6,
+                ..Default::default()
+            },
+            "settle_s",
+        ),
+        (
+            SpatialMemoryParams {
+                torus_period_m: f64::INFINITY,
+                ..Default::default()
+            },
+            "torus_period_m",
         ),
     ];
     for (params, name) in cases {

@@ -57,6 +57,24 @@ pub enum MapError {
         /// faer's message.
         detail: String,
     },
+    /// A sparse factorisation that would not fit in memory (checked before it is allocated).
+    #[error(
+        "correcting this pose graph would need {needed_bytes} bytes ({}) for its sparse Cholesky factors, \
+         more than {limit}: {limit_bytes} bytes ({}). Loop closures between far-apart vertices fill the \
+         factor in: use fewer (or more local) loop closures, correct with relaxation instead \
+         (PoseGraph.relax, or correct with method=\"relaxation\"), or run with more memory \
+         (max_factor_bytes sets the limit)",
+        gib(*.needed_bytes),
+        gib(*.limit_bytes)
+    )]
+    FactorTooLarge {
+        /// Bytes the factor(s) and their workspace would take.
+        needed_bytes: u64,
+        /// Bytes allowed.
+        limit_bytes: u64,
+        /// Where the limit comes from.
+        limit: &'static str,
+    },
     /// A g2o line that cannot be read.
     #[error("g2o line {line}: {message}")]
     G2oParse {
@@ -81,3 +99,8 @@ pub enum MapError {
 
 /// The result of everything that can fail in this crate.
 pub type Result<T> = std::result::Result<T, MapError>;
+
+/// Bytes in GiB with one decimal, for messages.
+fn gib(bytes: u64) -> String {
+    format!("{:.1} GiB", bytes as f64 / f64::from(1u32 << 30))
+}

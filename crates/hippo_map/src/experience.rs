@@ -49,9 +49,9 @@ use crate::error::{MapError, Result};
 use crate::graph::{
     check_information, check_pose, isotropic_information, Edge, EdgeKind, PoseGraph,
 };
-use crate::relax::{relax, RelaxationParams};
+use crate::relax::{relax_with_stop, RelaxationParams};
 use crate::se2::{wrap_angle, Pose2};
-use crate::solve::{optimize, Initialization, SolverParams};
+use crate::solve::{optimize_with_stop, Initialization, SolverParams, Termination};
 use serde::{Deserialize, Serialize};
 use std::collections::HashMap;
 
@@ -367,6 +367,9 @@ pub struct CorrectionReport {
     pub final_chi2: f64,
     /// Whether least squares converged (always false for relaxation).
     pub converged: bool,
+    /// The stop hook ended the correction early (see [`ExperienceMap::correct_with_stop`]).
+    #[serde(default)]
+    pub interrupted: bool,
 }
 
 /// The experience map with its tracking state.
@@ -951,27 +954,41 @@ impl ExperienceMap {
     /// Correct the vertex poses with either corrector. The least-squares one starts from the current
     /// poses unless its params say otherwise. Poses change only if the corrector succeeds.
     pub fn correct(&mut self, corrector: &Corrector) -> Result<CorrectionReport> {
+        self.correct_with_stop(corrector, &mut || false)
+    }
+
+    /// [`Self::correct`] that asks `should_stop` before every iteration or pass (see
+    /// [`crate::optimize_with_stop`], [`crate::relax_with_stop`]). When it says so the vertices take the
+    /// corrector's state at that point (least squares: the last accepted iterate, no worse than the start)
+    /// and the report says `interrupted`.
+    pub fn correct_with_stop(
+        &mut self,
+        corrector: &Corrector,
+        should_stop: &mut dyn FnMut() -> bool,
+    ) -> Result<CorrectionReport> {
         if self.vertices.is_empty() {
             return Err(MapError::EmptyGraph);
         }
         let mut graph = self.pose_graph();
         let report = match corrector {
             Corrector::Relaxation(params) => {
-                let r = relax(&mut graph, params)?;
+                let r = relax_with_stop(&mut graph, params, should_stop)?;
                 CorrectionReport {
                     iterations: r.passes,
                     initial_chi2: r.initial_chi2,
                     final_chi2: r.final_chi2,
                     converged: false,
+                    interrupted: r.interrupted,
                 }
             }
             Corrector::LeastSquares(params) => {
-                let r = optimize(&mut graph, params)?;
+                let r = optimize_with_stop(&mut graph, params, should_stop)?;
                 CorrectionReport {
                     iterations: r.iterations,
                     initial_chi2: r.initial_chi2,
                     final_chi2: r.final_chi2,
                     converged: r.converged,
+                    interrupted: r.termination == Termination::Interrupted,
                 }
             }
         };

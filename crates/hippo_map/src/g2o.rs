@@ -8,6 +8,7 @@
 //! is the convention of the standard benchmarks (some write closures backward, `j < i`). Files without
 //! `VERTEX_SE2` lines (the KITTI graphs) get their initial poses by dead reckoning along the odometry.
 use crate::error::{MapError, Result};
+use crate::files::write_replacing;
 use crate::graph::{Edge, EdgeKind, PoseGraph};
 use crate::se2::Pose2;
 use std::collections::BTreeMap;
@@ -205,12 +206,10 @@ pub fn format_g2o(graph: &PoseGraph) -> String {
     out
 }
 
-/// Write a g2o file.
+/// Write a g2o file, whole or not at all: a temporary file renamed over `path`, so a link at `path` is
+/// replaced rather than written through (see `files`).
 pub fn write_g2o(graph: &PoseGraph, path: &Path) -> Result<()> {
-    std::fs::write(path, format_g2o(graph)).map_err(|source| MapError::Io {
-        path: path.display().to_string(),
-        source,
-    })
+    write_replacing(path, format_g2o(graph).as_bytes())
 }
 
 #[cfg(test)]
@@ -272,5 +271,31 @@ EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 0 1 1.5 1 0 0 1 0 1\nEDGE_SE2 2 0 0
             parse_g2o("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0 0 0\nEDGE_SE2 0 1 1 0 0 -1 0 0 1 0 1\n")
                 .unwrap_err();
         assert!(err.to_string().contains("positive definite"), "{err}");
+    }
+
+    /// A link at the g2o file's name is replaced by the file; what it pointed to is untouched. A write
+    /// into a folder that is not there fails naming the file and leaves nothing behind.
+    #[cfg(unix)]
+    #[test]
+    fn writing_replaces_a_link_at_the_target_and_fails_cleanly() {
+        use crate::files::test_support::Scratch;
+        let dir = Scratch::new("g2o_link");
+        let victim = dir.0.join("victim");
+        std::fs::write(&victim, b"precious").unwrap();
+        let target = dir.0.join("map.g2o");
+        std::os::unix::fs::symlink(&victim, &target).unwrap();
+        let graph = parse_g2o(SMALL).unwrap();
+        write_g2o(&graph, &target).unwrap();
+        assert_eq!(std::fs::read(&victim).unwrap(), b"precious");
+        assert!(std::fs::symlink_metadata(&target).unwrap().is_file());
+        assert_eq!(read_g2o(&target).unwrap(), graph);
+
+        let missing = dir.0.join("missing").join("map.g2o");
+        let err = write_g2o(&graph, &missing).unwrap_err();
+        assert!(
+            err.to_string().contains(&missing.display().to_string()),
+            "{err}"
+        );
+        assert_eq!(dir.names(), ["map.g2o", "victim"]);
     }
 }

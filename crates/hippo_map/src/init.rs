@@ -13,8 +13,9 @@
 //! Both systems are assembled as normal equations and factorised with faer's sparse Cholesky.
 use crate::error::{MapError, Result};
 use crate::graph::PoseGraph;
+use crate::memory::MemoryBudget;
 use crate::se2::Pose2;
-use crate::sparse::BlockSystem;
+use crate::sparse::{BlockOrdering, BlockSystem};
 
 /// Free (non-fixed) vertex index of every vertex; `None` for the fixed one.
 pub(crate) fn free_indices(graph: &PoseGraph) -> Vec<Option<usize>> {
@@ -74,8 +75,19 @@ fn scaled(a: &[[f64; 2]; 2], k: f64) -> [[f64; 2]; 2] {
     [[a[0][0] * k, a[0][1] * k], [a[1][0] * k, a[1][1] * k]]
 }
 
-/// Replace the graph's poses by the chordal estimate (the fixed vertex keeps its pose).
+/// Replace the graph's poses by the chordal estimate (the fixed vertex keeps its pose). A graph whose
+/// factorisation would not fit in the memory available is refused ([`MapError::FactorTooLarge`]).
 pub fn initialize_chordal(graph: &mut PoseGraph) -> Result<()> {
+    initialize_chordal_with(graph, None, MemoryBudget::default())
+}
+
+/// [`initialize_chordal`] with the elimination order of the graph's pattern when the caller has it (the
+/// solve's, which is the same) and the memory the factorisation may take.
+pub(crate) fn initialize_chordal_with(
+    graph: &mut PoseGraph,
+    ordering: Option<&BlockOrdering>,
+    budget: MemoryBudget,
+) -> Result<()> {
     if graph.is_empty() {
         return Err(MapError::EmptyGraph);
     }
@@ -87,11 +99,18 @@ pub fn initialize_chordal(graph: &mut PoseGraph) -> Result<()> {
     if n_free == 0 {
         return Ok(());
     }
-    let pairs = pattern(graph, &free);
+    let own_ordering;
+    let ordering = match ordering {
+        Some(ordering) => ordering,
+        None => {
+            own_ordering = BlockOrdering::new(n_free, pattern(graph, &free).into_iter())?;
+            &own_ordering
+        }
+    };
     let fixed_pose = graph.poses[graph.fixed];
 
     // Step 1: rotations as unit complex numbers.
-    let mut system = BlockSystem::<2>::new(n_free, pairs.iter().copied())?;
+    let mut system = BlockSystem::<2>::new(ordering, budget)?;
     let mut rhs = vec![0.0; 2 * n_free];
     let z_fixed = [fixed_pose.yaw.cos(), fixed_pose.yaw.sin()];
     for e in &graph.edges {

@@ -11,7 +11,10 @@
 //! - [`ExperienceMap`]: the experience map driven per camera frame (creation rule, loop closure,
 //!   ambiguity) (`experience`).
 //! - [`to_bytes`], [`from_bytes`], `ExperienceMap::save`/`load`: versioned, checksummed map files
-//!   (`persist`).
+//!   (`persist`), written whole or not at all and never through a link (`files`).
+//! - Long solves take a stop hook ([`optimize_with_stop`], [`relax_with_stop`],
+//!   [`ExperienceMap::correct_with_stop`]), and a graph whose factorisation would not fit in memory is
+//!   refused before it is allocated ([`SolverParams::max_factor_bytes`], `memory`).
 //!
 //! The modules behind these are private; everything a caller needs is re-exported here.
 #![warn(missing_docs)]
@@ -19,9 +22,11 @@
 #![allow(clippy::needless_range_loop)]
 mod error;
 mod experience;
+mod files;
 mod g2o;
 mod graph;
 mod init;
+mod memory;
 mod persist;
 mod relax;
 mod se2;
@@ -38,6 +43,9 @@ pub use g2o::{format_g2o, parse_g2o, read_g2o, write_g2o};
 pub use graph::{ate_rmse_m, isotropic_information, Edge, EdgeKind, PoseGraph};
 pub use init::initialize_chordal;
 pub use persist::{from_bytes, to_bytes, FORMAT_VERSION, MAGIC};
-pub use relax::{relax, RelaxationParams, RelaxationReport};
+pub use relax::{relax, relax_with_stop, RelaxationParams, RelaxationReport};
 pub use se2::{wrap_angle, Pose2};
-pub use solve::{optimize, Initialization, RobustLoss, SolveReport, SolverParams, Termination};
+pub use solve::{
+    optimize, optimize_with_stop, Initialization, RobustLoss, SolveReport, SolverParams,
+    Termination,
+};

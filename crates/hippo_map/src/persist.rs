@@ -10,9 +10,11 @@
 //! payload length (truncated file), the FNV-1a 64-bit checksum (corrupted bytes), the JSON, and the map's
 //! own consistency (link ends, finite values, params). Only then is a new map built, so a bad file can
 //! never leave a half-loaded map. The checksum guards against accidents, not tampering. Files are
-//! written to a temporary sibling and renamed, so an interrupted save keeps the previous file intact.
+//! written to a fresh temporary sibling and renamed over the target ([`crate::files`]), so an interrupted
+//! save keeps the previous file intact and a link at either name is never written through.
 use crate::error::{MapError, Result};
 use crate::experience::ExperienceMap;
+use crate::files::write_replacing;
 use crate::graph::check_pose;
 use std::path::Path;
 
@@ -135,17 +137,9 @@ fn validate(map: &ExperienceMap) -> Result<()> {
     Ok(())
 }
 
-/// Save atomically (temporary file, then rename).
+/// Save atomically (new temporary file, then rename; see [`crate::files`]).
 pub fn save(map: &ExperienceMap, path: &Path) -> Result<()> {
-    let bytes = to_bytes(map)?;
-    let io = |source| MapError::Io {
-        path: path.display().to_string(),
-        source,
-    };
-    let mut tmp = path.as_os_str().to_owned();
-    tmp.push(".tmp");
-    std::fs::write(&tmp, &bytes).map_err(io)?;
-    std::fs::rename(&tmp, path).map_err(io)
+    write_replacing(path, &to_bytes(map)?)
 }
 
 pub fn load(path: &Path) -> Result<ExperienceMap> {
@@ -164,5 +158,65 @@ impl ExperienceMap {
     /// Load a saved map; a truncated, corrupted or foreign file is an error and builds nothing.
     pub fn load(path: &Path) -> Result<ExperienceMap> {
         load(path)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::experience::MapParams;
+    use crate::files::test_support::Scratch;
+
+    fn small_map() -> ExperienceMap {
+        ExperienceMap::new(MapParams::default()).unwrap()
+    }
+
+    /// A link left at the name the old save wrote its temporary to (`map.bin.tmp`) is not followed: the
+    /// file it points to keeps its bytes.
+    #[cfg(unix)]
+    #[test]
+    fn a_link_at_the_old_temporary_name_is_not_written_through() {
+        let dir = Scratch::new("persist_tmp_link");
+        let victim = dir.0.join("victim");
+        std::fs::write(&victim, b"precious").unwrap();
+        let target = dir.0.join("map.bin");
+        std::os::unix::fs::symlink(&victim, dir.0.join("map.bin.tmp")).unwrap();
+        save(&small_map(), &target).unwrap();
+        assert_eq!(std::fs::read(&victim).unwrap(), b"precious");
+        assert_eq!(load(&target).unwrap(), small_map());
+        assert_eq!(dir.names(), ["map.bin", "map.bin.tmp", "victim"]);
+    }
+
+    /// A link at the map's own name is replaced by the map file; what it pointed to is untouched.
+    #[cfg(unix)]
+    #[test]
+    fn a_link_at_the_map_name_is_replaced_by_a_regular_file() {
+        let dir = Scratch::new("persist_link");
+        let victim = dir.0.join("victim");
+        std::fs::write(&victim, b"precious").unwrap();
+        let target = dir.0.join("map.bin");
+        std::os::unix::fs::symlink(&victim, &target).unwrap();
+        save(&small_map(), &target).unwrap();
+        assert_eq!(std::fs::read(&victim).unwrap(), b"precious");
+        assert!(std::fs::symlink_metadata(&target).unwrap().is_file());
+        assert_eq!(load(&target).unwrap(), small_map());
+    }
+
+    /// A save that fails after writing (the target is a folder, so the rename fails) leaves no
+    /// temporary, and the error names the target.
+    #[test]
+    fn a_failed_save_leaves_no_temporary() {
+        let dir = Scratch::new("persist_fail");
+        let target = dir.0.join("map.bin");
+        std::fs::create_dir(&target).unwrap();
+        let err = save(&small_map(), &target).unwrap_err();
+        assert!(
+            err.to_string().contains(&target.display().to_string()),
+            "{err}"
+        );
+        assert_eq!(dir.names(), ["map.bin"]);
+        let missing = dir.0.join("missing").join("map.bin");
+        assert!(save(&small_map(), &missing).is_err());
+        assert_eq!(dir.names(), ["map.bin"]);
     }
 }

@@ -54,10 +54,26 @@ pub struct RelaxationReport {
     pub initial_chi2: f64,
     /// `χ²` after the last pass.
     pub final_chi2: f64,
+    /// The stop hook ended the passes early (see [`relax_with_stop`]).
+    #[serde(default)]
+    pub interrupted: bool,
 }
 
 /// Run `params.passes` relaxation passes over the graph's edges (information is ignored, as in RatSLAM).
 pub fn relax(graph: &mut PoseGraph, params: &RelaxationParams) -> Result<RelaxationReport> {
+    relax_with_stop(graph, params, &mut || false)
+}
+
+/// [`relax`] that asks `should_stop` before every pass (on the calling thread) and, when it says so,
+/// stops after the passes done so far: the map is re-anchored as after a full run, and the report says
+/// `interrupted` with the passes run. Relaxation does not lower `χ²` pass by pass as least squares does,
+/// but each pass is whole. The hook is called once per pass (microseconds on a small map): one that does
+/// work should keep its own clock.
+pub fn relax_with_stop(
+    graph: &mut PoseGraph,
+    params: &RelaxationParams,
+    should_stop: &mut dyn FnMut() -> bool,
+) -> Result<RelaxationReport> {
     params.validate()?;
     if graph.is_empty() {
         return Err(MapError::EmptyGraph);
@@ -65,7 +81,14 @@ pub fn relax(graph: &mut PoseGraph, params: &RelaxationParams) -> Result<Relaxat
     let initial_chi2 = graph.chi2();
     let anchor = graph.poses[graph.fixed];
     let gain = params.gain;
-    for _ in 0..params.passes {
+    let mut passes = 0;
+    let mut interrupted = false;
+    while passes < params.passes {
+        if should_stop() {
+            interrupted = true;
+            break;
+        }
+        passes += 1;
         for e in &graph.edges {
             let from = graph.poses[e.from];
             let to = graph.poses[e.to];
@@ -92,8 +115,9 @@ pub fn relax(graph: &mut PoseGraph, params: &RelaxationParams) -> Result<Relaxat
     }
     graph.poses[graph.fixed] = anchor;
     Ok(RelaxationReport {
-        passes: params.passes,
+        passes,
         initial_chi2,
         final_chi2: graph.chi2(),
+        interrupted,
     })
 }

@@ -23,6 +23,11 @@
 //! predicted decrease, back towards Gauss–Newton. The solve stops when an accepted step lowers `F` by less
 //! than `relative_cost_tolerance` of it, or when a rejected step was predicted to gain less than that.
 //!
+//! **Stopping and memory.** [`optimize_with_stop`] asks a caller's hook before every iteration and stops
+//! at the last accepted iterate ([`Termination::Interrupted`]). Before anything is factorised, the size
+//! of the factors is read off the graph's pattern and checked against
+//! [`SolverParams::max_factor_bytes`] or the memory available ([`MapError::FactorTooLarge`]).
+//!
 //! Robust loss (loop edges only, odometry is trusted): Cauchy `ρ(s) = c² ln(1 + s/c²)`, or dynamic
 //! covariance scaling (DCS, Agarwal et al. ICRA 2013), which as a loss is `ρ(s) = s` for `s ≤ Φ` and
 //! `4Φs/(Φ + s) − Φ` beyond, i.e. weight `(2Φ/(Φ + s))²`: a false closure with a large χ² gets almost no
@@ -30,9 +35,10 @@
 //! already trust the closures: [`Initialization::Odometry`] is the usual one for them.
 use crate::error::{MapError, Result};
 use crate::graph::{matrix3, Edge, EdgeKind, PoseGraph};
-use crate::init::{free_indices, initialize_chordal, pattern};
+use crate::init::{free_indices, initialize_chordal_with, pattern};
+use crate::memory::MemoryBudget;
 use crate::se2::{wrap_angle, Pose2};
-use crate::sparse::{BlockSlot, BlockSystem};
+use crate::sparse::{BlockOrdering, BlockSlot, BlockSystem};
 use nalgebra::{Matrix3, Rotation2, Vector2, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -124,6 +130,13 @@ pub struct SolverParams {
     pub robust_loss: RobustLoss,
     /// Where the poses start.
     pub initialization: Initialization,
+    /// Bytes the sparse Cholesky factors (the factor's values, the factorisation's workspace; with
+    /// [`Initialization::Chordal`] the initialisation's and the solve's together, as they are built at
+    /// the same time) may take; a graph that needs more is refused with [`MapError::FactorTooLarge`]
+    /// before anything that size is allocated. `None` (default): the memory the system has available
+    /// when the solve starts (Linux: `MemAvailable`, or less under a cgroup limit; elsewhere an assumed
+    /// 4 GiB), checked only above 64 MiB. A value replaces that check (e.g. to count on swap).
+    pub max_factor_bytes: Option<u64>,
 }
 
 impl SolverParams {
@@ -179,6 +192,7 @@ impl Default for SolverParams {
             max_lambda_decrease: 10.0,
             robust_loss: RobustLoss::None,
             initialization: Initialization::Chordal,
+            max_factor_bytes: None,
         }
     }
 }
@@ -196,6 +210,9 @@ pub enum Termination {
     NoFurtherDecrease,
     /// The iteration limit was reached.
     MaxIterations,
+    /// The caller's stop hook asked to stop (see [`optimize_with_stop`]); the poses are the last accepted
+    /// iterate, whose cost is at most the initial one.
+    Interrupted,
 }
 
 /// What a least-squares solve did.
@@ -407,13 +424,6 @@ struct Solver<'p> {
     damping: Option<Damping>,
 }
 
-/// The normal equations' set-up for `graph`'s pattern (ordering, symbolic factorisation, buffers); it does
-/// not depend on the poses.
-fn normal_equations(graph: &PoseGraph) -> Result<BlockSystem<3>> {
-    let pairs = pattern(graph, &free_indices(graph));
-    BlockSystem::<3>::new(graph.len() - 1, pairs.into_iter())
-}
-
 impl<'p> Solver<'p> {
     fn new(
         work: PoseGraph,
@@ -438,9 +448,13 @@ impl<'p> Solver<'p> {
     }
 
     /// Iterate steps 1–3; returns the number of iterations (factorisations) and why it stopped.
-    fn run(&mut self) -> (usize, Termination) {
+    /// `should_stop` is asked before each iteration; the poses are then the last accepted ones.
+    fn run(&mut self, should_stop: &mut dyn FnMut() -> bool) -> (usize, Termination) {
         let mut relinearize = true;
         for iteration in 1..=self.params.max_iterations {
+            if should_stop() {
+                return (iteration - 1, Termination::Interrupted);
+            }
             // 1. Linearise and assemble at the current poses (a rejected step keeps H and g).
             if relinearize {
                 let max_gradient = linearize_and_assemble(
@@ -533,8 +547,10 @@ impl<'p> Solver<'p> {
 }
 
 /// Check the inputs and return a copy of the graph at the initial estimate chosen in `params`, and the
-/// normal equations' set-up when there is anything to solve. The two are independent (the set-up depends on
-/// the pattern only) and cost about the same on large graphs (on a 10⁵-vertex grid world the chordal
+/// normal equations' set-up when there is anything to solve. Both start from one fill-reducing order of
+/// the graph's pattern, which also says how large their factors will be: a graph whose factors would not
+/// fit is refused here, before either is built. The two are then independent (the set-up depends on the
+/// pattern only) and cost about the same on large graphs (on a 10⁵-vertex grid world the chordal
 /// estimate 0.67 s, the set-up 0.26 s), so they run at once on two cores.
 fn initial_estimate(
     graph: &PoseGraph,
@@ -552,13 +568,42 @@ fn initial_estimate(
     }
     let mut work = graph.clone();
     let to_solve = work.len() >= 2 && !work.edges.is_empty();
+    let ordering = to_solve
+        .then(|| {
+            BlockOrdering::new(
+                graph.len() - 1,
+                pattern(graph, &free_indices(graph)).into_iter(),
+            )
+        })
+        .transpose()?;
+    let chordal = params.initialization == Initialization::Chordal;
+    // Each system's budget counts the other's factor, which is alive at the same time.
+    let (solve_bytes, chordal_bytes) = match &ordering {
+        Some(o) => (
+            o.factor_bytes(3),
+            if chordal { o.factor_bytes(2) } else { 0 },
+        ),
+        None => (0, 0),
+    };
+    let budget = |alongside_bytes| MemoryBudget {
+        cap_bytes: params.max_factor_bytes,
+        alongside_bytes,
+    };
+    budget(chordal_bytes).check(solve_bytes)?;
     let (initialized, system) = rayon::join(
         || match params.initialization {
             Initialization::Current => Ok(()),
             Initialization::Odometry => work.initialize_from_odometry(),
-            Initialization::Chordal => initialize_chordal(&mut work),
+            Initialization::Chordal => {
+                initialize_chordal_with(&mut work, ordering.as_ref(), budget(solve_bytes))
+            }
         },
-        || to_solve.then(|| normal_equations(graph)).transpose(),
+        || {
+            ordering
+                .as_ref()
+                .map(|o| BlockSystem::<3>::new(o, budget(chordal_bytes)))
+                .transpose()
+        },
     );
     // An initialisation error (a disconnected vertex) says more than a set-up one.
     initialized?;
@@ -586,6 +631,20 @@ fn downweighted_loops(graph: &PoseGraph, loss: &RobustLoss) -> usize {
 /// Run the initialisation chosen in `params`, then Gauss–Newton / Levenberg–Marquardt (see the module
 /// docs); the graph's poses are replaced by the solution only when the solve succeeds.
 pub fn optimize(graph: &mut PoseGraph, params: &SolverParams) -> Result<SolveReport> {
+    optimize_with_stop(graph, params, &mut || false)
+}
+
+/// [`optimize`] that asks `should_stop` before every iteration (on the calling thread) and, when it says
+/// so, ends with [`Termination::Interrupted`], the graph at the last accepted iterate: a valid state
+/// whose cost is at most the initial one (after initialisation), never a half-applied step. The
+/// initialisation and each factorisation run to their end (a chordal initialisation is two linear
+/// solves, about one iteration's time). A hook that does work (e.g. polling signals) should keep its
+/// own clock: it is called once per iteration, which on a small graph is every few microseconds.
+pub fn optimize_with_stop(
+    graph: &mut PoseGraph,
+    params: &SolverParams,
+    should_stop: &mut dyn FnMut() -> bool,
+) -> Result<SolveReport> {
     // Start: checked inputs, initial estimate on a copy.
     let (work, system) = initial_estimate(graph, params)?;
     let loss = params.robust_loss;
@@ -604,7 +663,7 @@ pub fn optimize(graph: &mut PoseGraph, params: &SolverParams) -> Result<SolveRep
         Some(system) => {
             // Set up once (ordering, symbolic factorisation, buffers), then iterate.
             let mut solver = Solver::new(work, system, initial_cost, params)?;
-            let (iterations, termination) = solver.run();
+            let (iterations, termination) = solver.run(should_stop);
             (iterations, termination, solver.work)
         }
     };
@@ -615,7 +674,10 @@ pub fn optimize(graph: &mut PoseGraph, params: &SolverParams) -> Result<SolveRep
         initial_chi2,
         final_chi2,
         final_cost,
-        converged: termination != Termination::MaxIterations,
+        converged: !matches!(
+            termination,
+            Termination::MaxIterations | Termination::Interrupted
+        ),
         termination,
         downweighted_loops: downweighted_loops(&work, &loss),
     };

@@ -1,10 +1,15 @@
 //! Block-sparse symmetric normal equations `(H + λI) δ = −g`, factorised by faer's sparse Cholesky.
 //!
 //! The unknowns are `B`-vectors, one per free vertex. The sparsity pattern depends on the graph only, so
-//! everything that depends on the pattern is done once, in [`BlockSystem::new`]:
+//! everything that depends on the pattern is done once, in [`BlockOrdering::new`] and [`BlockSystem::new`]:
 //! - a fill-reducing ordering (approximate minimum degree) of the *block* graph, which keeps each vertex's
 //!   `B` unknowns adjacent (they become dense columns of one supernode) and is `B²` times cheaper to
-//!   compute than an ordering of the scalar pattern;
+//!   compute than an ordering of the scalar pattern; it does not depend on `B`, so the chordal
+//!   initialisation and the solve share it;
+//! - the number of blocks in each column of the factor, counted in near-linear time from the ordered
+//!   pattern, which gives the factor's size for any `B` before anything that size exists: a system whose
+//!   factorisation would not fit in memory is refused ([`MemoryBudget`]), first on that estimate, then
+//!   exactly after the symbolic factorisation;
 //! - `H` is stored directly in that elimination order and on the triangle the factorisation reads (upper
 //!   CSC for faer's simplicial Cholesky, lower CSC for its supernodal one), so the numeric factorisation
 //!   neither permutes nor transposes the matrix;
@@ -17,6 +22,7 @@
 //! Callers address blocks and right-hand sides in their own (unpermuted) order; the permutation of the
 //! right-hand side, `O(n)`, happens inside [`BlockSystem::solve_damped`].
 use crate::error::{MapError, Result};
+use crate::memory::MemoryBudget;
 use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
 use faer::sparse::linalg::cholesky::{
     factorize_symbolic_cholesky, CholeskySymbolicParams, LltRef, SymbolicCholesky,
@@ -91,18 +97,29 @@ fn scalar_pattern<const B: usize>(
     SymbolicSparseColMat::new_checked(n, n, col_ptr, None, row_idx)
 }
 
-impl<const B: usize> BlockSystem<B> {
-    /// Pattern of `H` for blocks coupled by `pairs` (block indices); every block has its diagonal.
-    pub fn new(n_blocks: usize, pairs: impl Iterator<Item = (usize, usize)>) -> Result<Self> {
-        Self::with_threshold(n_blocks, pairs, SupernodalThreshold::AUTO)
-    }
+/// "No vertex" in the elimination tree's parent and ancestor arrays.
+const NONE: usize = usize::MAX;
 
-    /// [`Self::new`] with faer's choice between its simplicial and supernodal factorisations overridden.
-    fn with_threshold(
-        n_blocks: usize,
-        pairs: impl Iterator<Item = (usize, usize)>,
-        supernodal_flop_ratio_threshold: SupernodalThreshold,
-    ) -> Result<Self> {
+/// The fill-reducing order of a block pattern, the pattern in that order, and the number of blocks in
+/// each column of its Cholesky factor. None of it depends on the block size, so the chordal
+/// initialisation (2×2 blocks) and the solve (3×3) share one.
+#[derive(Debug, Clone)]
+pub(crate) struct BlockOrdering {
+    n_blocks: usize,
+    /// `position[b]`: where block `b` sits in the elimination order.
+    position: Vec<usize>,
+    /// Sorted block rows of each block column in the elimination order, upper triangle (rows ≤ column),
+    /// and lower triangle (rows ≥ column), the diagonal included in both.
+    permuted_upper: Vec<Vec<usize>>,
+    permuted_lower: Vec<Vec<usize>>,
+    /// Blocks in each block column of the factor `L`, the diagonal block included.
+    factor_column_blocks: Vec<usize>,
+}
+
+impl BlockOrdering {
+    /// Order the blocks coupled by `pairs` (block indices; every block has its diagonal) by approximate
+    /// minimum degree and count the factor's blocks, in time about linear in the number of pairs.
+    pub fn new(n_blocks: usize, pairs: impl Iterator<Item = (usize, usize)>) -> Result<Self> {
         // Block adjacency, upper triangle (row ≤ column), in the caller's order.
         let mut upper: Vec<Vec<usize>> = (0..n_blocks).map(|b| vec![b]).collect();
         for (a, b) in pairs {
@@ -158,10 +175,163 @@ impl<const B: usize> BlockSystem<B> {
         for rows in permuted_upper.iter_mut().chain(permuted_lower.iter_mut()) {
             rows.sort_unstable();
         }
-        drop(upper);
+        let factor_column_blocks = factor_column_counts(&permuted_upper, &permuted_lower);
+        Ok(Self {
+            n_blocks,
+            position,
+            permuted_upper,
+            permuted_lower,
+            factor_column_blocks,
+        })
+    }
+
+    /// Entries of the factor `L` of the scalar matrix with `block × block` blocks: a block column with
+    /// `c` blocks holds `block²(c − 1)` entries below its diagonal block and `block(block + 1)/2` in it.
+    /// faer's supernodal factor may store a few more (it pads supernodes that it merges).
+    pub fn factor_entries(&self, block: usize) -> u64 {
+        let (b, diagonal) = (block as u64, (block * (block + 1) / 2) as u64);
+        self.factor_column_blocks
+            .iter()
+            .map(|&c| {
+                (b * b)
+                    .saturating_mul(c as u64 - 1)
+                    .saturating_add(diagonal)
+            })
+            .fold(0u64, u64::saturating_add)
+    }
+
+    /// Bytes of the factor's values (f64) for `block × block` blocks: what any factorisation allocates.
+    pub fn factor_bytes(&self, block: usize) -> u64 {
+        self.factor_entries(block).saturating_mul(F64_BYTES)
+    }
+}
+
+const F64_BYTES: u64 = std::mem::size_of::<f64>() as u64;
+
+/// Number of entries in each column of the Cholesky factor of a symmetric pattern (the diagonal
+/// included), given both triangles: the row-subtree algorithm of Gilbert, Ng and Peyton (1994) as in
+/// CSparse's `cs_counts` (Davis, "Direct Methods for Sparse Linear Systems", §4.5). It takes time
+/// `O(nnz · α(n))`, not `O(nnz(L))` as walking the row subtrees does (what faer's symbolic analysis
+/// does): that is what lets a factor of 10¹¹ entries be refused in a fraction of a second.
+fn factor_column_counts(upper: &[Vec<usize>], lower: &[Vec<usize>]) -> Vec<usize> {
+    let n = upper.len();
+    // Elimination tree (cs_etree), with path compression through `ancestor`.
+    let mut parent = vec![NONE; n];
+    let mut ancestor = vec![NONE; n];
+    for (k, rows) in upper.iter().enumerate() {
+        for &row in rows {
+            let mut i = row;
+            while i != NONE && i < k {
+                let next = ancestor[i];
+                ancestor[i] = k;
+                if next == NONE {
+                    parent[i] = k;
+                }
+                i = next;
+            }
+        }
+    }
+    // Postorder of the tree (cs_post): children lists, then an iterative depth-first search.
+    let mut head = vec![NONE; n];
+    let mut next = vec![NONE; n];
+    for j in (0..n).rev() {
+        if parent[j] != NONE {
+            next[j] = head[parent[j]];
+            head[parent[j]] = j;
+        }
+    }
+    let mut post = Vec::with_capacity(n);
+    let mut stack = Vec::new();
+    for root in (0..n).filter(|&j| parent[j] == NONE) {
+        stack.push(root);
+        while let Some(&p) = stack.last() {
+            let child = head[p];
+            if child == NONE {
+                stack.pop();
+                post.push(p);
+            } else {
+                head[p] = next[child];
+                stack.push(child);
+            }
+        }
+    }
+    // first[j]: postorder index of j's first descendant; a leaf starts its count at 1.
+    let mut first = vec![NONE; n];
+    let mut delta = vec![0isize; n];
+    for (k, &j) in post.iter().enumerate() {
+        delta[j] = isize::from(first[j] == NONE);
+        let mut v = j;
+        while v != NONE && first[v] == NONE {
+            first[v] = k;
+            v = parent[v];
+        }
+    }
+    // Skeleton entries add one to their column, and each overlap of two row subtrees takes one off at
+    // their least common ancestor (found by union–find over the postorder).
+    let mut max_first = vec![NONE; n];
+    let mut previous_leaf = vec![NONE; n];
+    let mut set: Vec<usize> = (0..n).collect();
+    for &j in &post {
+        if parent[j] != NONE {
+            delta[parent[j]] -= 1;
+        }
+        for &i in &lower[j] {
+            // cs_leaf: is j a leaf of the i-th row subtree?
+            if i <= j || (max_first[i] != NONE && first[j] <= max_first[i]) {
+                continue;
+            }
+            max_first[i] = first[j];
+            let previous = previous_leaf[i];
+            previous_leaf[i] = j;
+            delta[j] += 1;
+            if previous != NONE {
+                let mut q = previous;
+                while q != set[q] {
+                    q = set[q];
+                }
+                let mut s = previous;
+                while s != q {
+                    let up = set[s];
+                    set[s] = q;
+                    s = up;
+                }
+                delta[q] -= 1;
+            }
+        }
+        if parent[j] != NONE {
+            set[j] = parent[j];
+        }
+    }
+    // Sum the deltas up the tree (a parent's index is above its children's).
+    for j in 0..n {
+        if parent[j] != NONE {
+            delta[parent[j]] += delta[j];
+        }
+    }
+    // Every column holds at least its diagonal; the sums are exact, the bound only guards the cast.
+    delta.into_iter().map(|d| d.max(1) as usize).collect()
+}
+
+impl<const B: usize> BlockSystem<B> {
+    /// Pattern of `H` in `ordering`'s elimination order, refused by `budget` when the factorisation
+    /// would not fit.
+    pub fn new(ordering: &BlockOrdering, budget: MemoryBudget) -> Result<Self> {
+        Self::with_threshold(ordering, budget, SupernodalThreshold::AUTO)
+    }
+
+    /// [`Self::new`] with faer's choice between its simplicial and supernodal factorisations overridden.
+    fn with_threshold(
+        ordering: &BlockOrdering,
+        budget: MemoryBudget,
+        supernodal_flop_ratio_threshold: SupernodalThreshold,
+    ) -> Result<Self> {
+        // The factor's values are the least any factorisation takes: refuse before the symbolic
+        // analysis, which takes time (and, simplicial, memory) in proportion to them.
+        budget.check(ordering.factor_bytes(B))?;
+        let n_blocks = ordering.n_blocks;
 
         // Symbolic factorisation in that order (no further permutation).
-        let upper_pattern = scalar_pattern::<B>(&permuted_upper, Side::Upper);
+        let upper_pattern = scalar_pattern::<B>(&ordering.permuted_upper, Side::Upper);
         let symbolic = factorize_symbolic_cholesky(
             upper_pattern.as_ref(),
             Side::Upper,
@@ -174,13 +344,15 @@ impl<const B: usize> BlockSystem<B> {
         .map_err(|e| factorization_error(format!("symbolic analysis: {e:?}")))?;
         // Store the triangle the numeric factorisation reads.
         let (side, pattern, block_rows) = match symbolic.raw() {
-            SymbolicCholeskyRaw::Simplicial(_) => (Side::Upper, upper_pattern, permuted_upper),
+            SymbolicCholeskyRaw::Simplicial(_) => {
+                (Side::Upper, upper_pattern, ordering.permuted_upper.clone())
+            }
             SymbolicCholeskyRaw::Supernodal(_) => {
                 drop(upper_pattern);
                 (
                     Side::Lower,
-                    scalar_pattern::<B>(&permuted_lower, Side::Lower),
-                    permuted_lower,
+                    scalar_pattern::<B>(&ordering.permuted_lower, Side::Lower),
+                    ordering.permuted_lower.clone(),
                 )
             }
         };
@@ -194,10 +366,21 @@ impl<const B: usize> BlockSystem<B> {
             symbolic.factorize_numeric_llt_scratch::<f64>(Par::Seq, Default::default()),
             symbolic.solve_in_place_scratch::<f64>(1, Par::Seq),
         ]);
+        // Now exactly: the factor's values, the workspace, and the simplicial factor's row indices.
+        let row_index_bytes = match symbolic.raw() {
+            SymbolicCholeskyRaw::Simplicial(s) => s.len_val() * std::mem::size_of::<usize>(),
+            SymbolicCholeskyRaw::Supernodal(_) => 0,
+        };
+        budget.check(
+            (symbolic.len_val() as u64)
+                .saturating_mul(F64_BYTES)
+                .saturating_add(workspace_size.unaligned_bytes_required() as u64)
+                .saturating_add(row_index_bytes as u64),
+        )?;
         let nnz = pattern.row_idx().len();
         Ok(Self {
             n_blocks,
-            position,
+            position: ordering.position.clone(),
             pattern,
             side,
             block_rows,
@@ -381,8 +564,10 @@ mod tests {
             (4, 1),
         ];
         let mut dense = [[0.0f64; 3 * N]; 3 * N];
+        let ordering = BlockOrdering::new(N, pairs.iter().copied()).unwrap();
         let mut system =
-            BlockSystem::<3>::with_threshold(N, pairs.iter().copied(), threshold).unwrap();
+            BlockSystem::<3>::with_threshold(&ordering, MemoryBudget::default(), threshold)
+                .unwrap();
         let block = |a: usize, b: usize| {
             let mut m = [[0.0; 3]; 3];
             for r in 0..3 {
@@ -444,5 +629,113 @@ mod tests {
             factor_buffer,
             "the factor's buffer is reused"
         );
+    }
+
+    /// Random block patterns: a chain (every vertex joined to the next, as odometry does) plus random
+    /// couplings, short and long.
+    fn random_pattern(n: usize, extra: usize, seed: u64) -> Vec<(usize, usize)> {
+        use rand::{Rng, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(seed);
+        let mut pairs: Vec<(usize, usize)> = (1..n).map(|i| (i - 1, i)).collect();
+        for _ in 0..extra {
+            pairs.push((rng.random_range(0..n), rng.random_range(0..n)));
+        }
+        pairs
+    }
+
+    /// The near-linear column counts agree with faer's (which walks every row subtree), and the scalar
+    /// factor of 3×3 blocks has exactly the entries predicted from them (simplicial, no padding).
+    #[test]
+    fn factor_column_counts_match_faer_and_predict_the_factor() {
+        use faer::sparse::linalg::cholesky::simplicial::prefactorize_symbolic_cholesky;
+        for (n, extra, seed) in [
+            (1, 0, 0),
+            (2, 0, 1),
+            (30, 0, 2),
+            (60, 8, 3),
+            (200, 150, 4),
+            (400, 2000, 5),
+        ] {
+            let ordering =
+                BlockOrdering::new(n, random_pattern(n, extra, seed).into_iter()).unwrap();
+            let col_ptr: Vec<usize> = std::iter::once(0)
+                .chain(ordering.permuted_upper.iter().scan(0, |acc, r| {
+                    *acc += r.len();
+                    Some(*acc)
+                }))
+                .collect();
+            let row_idx: Vec<usize> = ordering.permuted_upper.iter().flatten().copied().collect();
+            let upper = SymbolicSparseColMatRef::new_checked(n, n, &col_ptr, None, &row_idx);
+            let mut etree = vec![0isize; n];
+            let mut faer_counts = vec![0usize; n];
+            prefactorize_symbolic_cholesky(
+                &mut etree,
+                &mut faer_counts,
+                upper,
+                MemStack::new(&mut MemBuffer::new(StackReq::new::<usize>(n))),
+            );
+            assert_eq!(
+                ordering.factor_column_blocks, faer_counts,
+                "n {n} extra {extra}"
+            );
+
+            let system = BlockSystem::<3>::with_threshold(
+                &ordering,
+                MemoryBudget::default(),
+                SupernodalThreshold::FORCE_SIMPLICIAL,
+            )
+            .unwrap();
+            assert_eq!(system.factor.len() as u64, ordering.factor_entries(3));
+        }
+    }
+
+    /// Long couplings fill the factor in; under a cap below its size the system is refused before the
+    /// symbolic analysis or any factor-sized buffer, with the bytes it would need.
+    #[test]
+    fn a_factor_over_the_cap_is_refused_with_its_size() {
+        let ordering = BlockOrdering::new(600, random_pattern(600, 3000, 7).into_iter()).unwrap();
+        let needed = ordering.factor_bytes(3);
+        assert!(needed > 4_000_000, "the pattern fills in: {needed} bytes");
+        let err = BlockSystem::<3>::new(
+            &ordering,
+            MemoryBudget {
+                cap_bytes: Some(1_000_000),
+                alongside_bytes: 0,
+            },
+        )
+        .err()
+        .unwrap();
+        match err {
+            MapError::FactorTooLarge {
+                needed_bytes,
+                limit_bytes,
+                ..
+            } => {
+                assert_eq!((needed_bytes, limit_bytes), (needed, 1_000_000));
+            }
+            other => panic!("expected FactorTooLarge, got {other}"),
+        }
+        // Values alone fit, the exact total (values, workspace) does not: refused after the analysis.
+        let err = BlockSystem::<3>::new(
+            &ordering,
+            MemoryBudget {
+                cap_bytes: Some(needed),
+                alongside_bytes: 0,
+            },
+        )
+        .err()
+        .unwrap();
+        assert!(
+            matches!(err, MapError::FactorTooLarge { needed_bytes, .. } if needed_bytes > needed),
+            "{err}"
+        );
+        assert!(BlockSystem::<3>::new(
+            &ordering,
+            MemoryBudget {
+                cap_bytes: Some(4 * needed),
+                alongside_bytes: 0
+            }
+        )
+        .is_ok());
     }
 }

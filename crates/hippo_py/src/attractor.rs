@@ -4,11 +4,11 @@
 //! source; Python's pydantic model is generated from them). Readouts cross as frozen typed objects
 //! (`SpatialReadout`, `ModuleReadout`, `Bump`) that hold the Rust readout and build their Python values
 //! when read; activity arrays cross as numpy arrays moved out of Rust vectors without copying.
-use crate::convert::{flat_f64, pair, params_from_json, params_to_json, to_numpy};
+use crate::convert::{flat_f64, pair, params_to_json, section_from_json, to_numpy};
 use crate::errors::{to_py_err, HippoNavError};
 use hippo_attractor::{
-    find_bumps as decode_bumps, fuse_homocentric, Bump2, FusedEstimate, ModuleReadout,
-    SpatialMemory, SpatialMemoryParams, SpatialReadout, ViewInjection, N_MODULES,
+    find_bumps as decode_bumps, fuse_homocentric, AttractorError, Bump2, FusedEstimate,
+    ModuleReadout, SpatialMemory, SpatialMemoryParams, SpatialReadout, ViewInjection, N_MODULES,
 };
 use numpy::{IntoPyArray, PyArray1, PyArrayDyn, PyReadonlyArrayDyn, PyUntypedArrayMethods};
 use pyo3::prelude::*;
@@ -271,6 +271,16 @@ fn into_numpy<'py, T: hippo_attractor::Real + numpy::Element>(
     to_numpy(py, v.into_iter().map(|x| x.f64()).collect(), shape)
 }
 
+/// A parameter refused when the engine is built, named by its path in the config file (`engine.hd.n_theta`).
+fn engine_config_err(err: AttractorError) -> PyErr {
+    match err {
+        AttractorError::BadParameter { name, value, why } => HippoNavError::new_err(format!(
+            "invalid engine config: engine.{name} = {value}: {why}"
+        )),
+        other => to_py_err(other),
+    }
+}
+
 #[pymethods]
 impl PySpatialMemory {
     /// `params_json`: JSON of the engine parameters (missing fields are an error: use the Python
@@ -278,7 +288,8 @@ impl PySpatialMemory {
     #[new]
     #[pyo3(signature = (params_json=None, dtype="float32"))]
     fn new(py: Python<'_>, params_json: Option<&str>, dtype: &str) -> PyResult<Self> {
-        let params: SpatialMemoryParams = params_from_json(params_json, "engine config")?;
+        let params: SpatialMemoryParams =
+            section_from_json(params_json, "engine config", "engine")?;
         let engine = match dtype {
             "float32" => py
                 .detach(|| SpatialMemory::<f32>::new(params))
@@ -292,7 +303,7 @@ impl PySpatialMemory {
                 )))
             }
         }
-        .map_err(to_py_err)?;
+        .map_err(engine_config_err)?;
         Ok(Self { engine })
     }
 
@@ -571,7 +582,8 @@ fn grid_recurrent_input_check<'py>(
     module: i64,
     activity: PyReadonlyArrayDyn<'_, f64>,
 ) -> PyResult<ArrayPair<'py>> {
-    let params: SpatialMemoryParams = params_from_json(Some(config_json), "engine config")?;
+    let params: SpatialMemoryParams =
+        section_from_json(Some(config_json), "engine config", "engine")?;
     let p = params
         .grid
         .get(module_index(module)?)

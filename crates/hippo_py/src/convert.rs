@@ -132,15 +132,65 @@ pub fn pair(a: [f64; 2]) -> (f64, f64) {
 }
 
 /// Parameters from the JSON of their Rust struct (`None`: the defaults); `what` names them in the error.
+/// A bad field is named by its path (`grid[1].k`), never by a line and column of JSON nobody wrote.
 pub fn params_from_json<P: DeserializeOwned + Default>(
     json: Option<&str>,
     what: &str,
 ) -> PyResult<P> {
-    match json {
-        None => Ok(P::default()),
-        Some(s) => serde_json::from_str(s)
-            .map_err(|e| HippoNavError::new_err(format!("invalid {what}: {e}"))),
+    section_from_json(json, what, "")
+}
+
+/// As `params_from_json`, for the parameters of a config-file section: the path of a bad field starts
+/// with the section (`engine.hd.n_theta`), as the Python config names it.
+pub fn section_from_json<P: DeserializeOwned + Default>(
+    json: Option<&str>,
+    what: &str,
+    section: &str,
+) -> PyResult<P> {
+    let Some(text) = json else {
+        return Ok(P::default());
+    };
+    let value: serde_json::Value = serde_json::from_str(text)
+        .map_err(|e| HippoNavError::new_err(format!("invalid {what}: not valid JSON ({e})")))?;
+    serde_path_to_error::deserialize(value).map_err(|e| {
+        let path = e.path().to_string();
+        let field = match (section, path.as_str()) {
+            (s, ".") => s.to_string(),
+            ("", p) => p.to_string(),
+            (s, p) => format!("{s}.{p}"),
+        };
+        let field = if field.is_empty() {
+            "(top level)"
+        } else {
+            &field
+        };
+        HippoNavError::new_err(format!(
+            "invalid {what}: {field}: {}",
+            plain_serde_message(&e.into_inner().to_string())
+        ))
+    })
+}
+
+/// serde's type names said in words: `expected usize` → a whole number ≥ 0; a JSON `null` where a number
+/// belongs is what NaN and infinity become in JSON.
+fn plain_serde_message(message: &str) -> String {
+    let mut out = message.to_string();
+    for (rust, words) in [
+        ("expected usize", "expected a whole number ≥ 0"),
+        ("expected u64", "expected a whole number ≥ 0"),
+        (
+            "expected u32",
+            "expected a whole number from 0 to 4294967295",
+        ),
+        ("expected f64", "expected a finite number"),
+        ("expected f32", "expected a finite number"),
+    ] {
+        out = out.replace(rust, words);
     }
+    if out.starts_with("invalid type: null") {
+        out.push_str(" (NaN and infinity are written as null in JSON: give a finite number)");
+    }
+    out
 }
 
 /// Parameters as JSON.

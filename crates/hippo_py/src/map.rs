@@ -6,13 +6,19 @@
 //! a corrector did comes back as a frozen typed object (`MapFrameOutcome`, `SolveReport`,
 //! `RelaxationReport`, `CorrectionReport`); the reports also read like dicts (`report["final_chi2"]`,
 //! `as_dict()`).
+//!
+//! The correctors can be interrupted: while one runs detached, its stop hook ([`SignalPoll`]) takes the
+//! interpreter back every 50 ms at most, between iterations, to run Python's signal handlers. When a
+//! handler raises (Ctrl-C's `KeyboardInterrupt`), the corrector stops at its current state, which the
+//! graph or map keeps (least squares: the last accepted iterate, no worse than the start), and the
+//! exception is raised to the caller.
 use crate::convert::{flat_f64, params_from_json, params_to_json, report, rows_f64, PoseTuple};
 use crate::errors::{to_py_err, HippoNavError};
 use hippo_map::{
-    isotropic_information, optimize, parse_g2o, read_g2o, relax, write_g2o, ClosureRejection,
-    CorrectionReport, Corrector, Edge, EdgeKind, ExperienceMap, FrameInput, FrameOutcome,
-    Initialization, Link, LoopMeasurement, MapParams, Pose2, PoseGraph, RelaxationParams,
-    RelaxationReport, RobustLoss, SolveReport, SolverParams, Termination, Vertex,
+    isotropic_information, optimize_with_stop, parse_g2o, read_g2o, relax_with_stop, write_g2o,
+    ClosureRejection, CorrectionReport, Corrector, Edge, EdgeKind, ExperienceMap, FrameInput,
+    FrameOutcome, Initialization, Link, LoopMeasurement, MapParams, Pose2, PoseGraph,
+    RelaxationParams, RelaxationReport, RobustLoss, SolveReport, SolverParams, Termination, Vertex,
 };
 use numpy::{
     IntoPyArray, PyArray2, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArrayMethods,
@@ -20,6 +26,7 @@ use numpy::{
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 use std::path::PathBuf;
+use std::time::{Duration, Instant};
 
 /// A measured loop closure from Python: target vertex, `agent_from_target`, information (3, 3).
 type LoopArg<'py> = (usize, PoseTuple, PyReadonlyArrayDyn<'py, f64>);
@@ -53,11 +60,54 @@ fn poses_array<'py>(
     flat.into_pyarray(py).reshape(vec![n, 3])
 }
 
+/// How often a detached corrector runs Python's signal handlers at most: Ctrl-C is answered within this
+/// (plus one iteration), and a corrector whose iterations take microseconds does not pay for taking the
+/// interpreter back after each one.
+const SIGNAL_POLL_INTERVAL: Duration = Duration::from_millis(50);
+
+/// The stop hook of a detached corrector: runs Python's signal handlers (`PyErr_CheckSignals`, which
+/// does anything only on the main thread) and keeps the exception one raised.
+struct SignalPoll {
+    last_poll: Instant,
+    raised: Option<PyErr>,
+}
+
+impl SignalPoll {
+    fn new() -> Self {
+        Self {
+            last_poll: Instant::now(),
+            raised: None,
+        }
+    }
+
+    fn should_stop(&mut self) -> bool {
+        if self.raised.is_some() {
+            return true;
+        }
+        if self.last_poll.elapsed() < SIGNAL_POLL_INTERVAL {
+            return false;
+        }
+        self.last_poll = Instant::now();
+        self.raised = Python::attach(|py| py.check_signals()).err();
+        self.raised.is_some()
+    }
+
+    /// The corrector's result, unless a signal handler raised: then its exception (the corrector has
+    /// already left its interrupted state in place).
+    fn finish<T>(self, result: hippo_map::Result<T>) -> PyResult<T> {
+        match self.raised {
+            Some(err) => Err(err),
+            None => result.map_err(to_py_err),
+        }
+    }
+}
+
 /// Solver settings that cross from Python; `None` keeps the Rust default.
 struct SolverOverrides {
     relative_cost_tolerance: Option<f64>,
     initial_lambda_scale: Option<f64>,
     max_lambda_decrease: Option<f64>,
+    max_factor_bytes: Option<u64>,
 }
 
 fn solver_params(
@@ -105,6 +155,7 @@ fn solver_params(
         max_lambda_decrease: overrides
             .max_lambda_decrease
             .unwrap_or(defaults.max_lambda_decrease),
+        max_factor_bytes: overrides.max_factor_bytes,
         ..defaults
     })
 }
@@ -116,6 +167,7 @@ fn termination_name(t: Termination) -> &'static str {
         Termination::NothingToDo => "nothing_to_do",
         Termination::NoFurtherDecrease => "no_further_decrease",
         Termination::MaxIterations => "max_iterations",
+        Termination::Interrupted => "interrupted",
     }
 }
 
@@ -133,7 +185,8 @@ report! {
         /// Whether a convergence test was met.
         converged: bool = r.converged,
         /// Why the solve stopped: "cost_converged", "gradient_converged", "nothing_to_do",
-        /// "no_further_decrease" or "max_iterations".
+        /// "no_further_decrease", "max_iterations" or "interrupted" (a stop hook; from Python the
+        /// signal handler's exception is raised instead).
         termination: &'static str = termination_name(r.termination),
         /// Loop edges whose final robust weight is below ½ (treated as outliers); 0 without a robust loss.
         downweighted_loops: usize = r.downweighted_loops,
@@ -378,7 +431,10 @@ impl PyPoseGraph {
 
     /// Gauss–Newton first, Levenberg–Marquardt when a step fails, on faer's sparse Cholesky (see
     /// `hippo_map::SolverParams` for the tolerances and the damping schedule; `None` keeps a default).
-    /// `max_iterations=0` only runs the initialisation.
+    /// `max_iterations=0` only runs the initialisation. `max_factor_bytes`: the memory the factorisation
+    /// may take (None: what the system has available); a graph that needs more raises `HippoNavError`
+    /// saying how much. Ctrl-C (a signal handler that raises) stops the solve between iterations and
+    /// raises, the graph at the last accepted iterate.
     #[pyo3(signature = (
         initialization="chordal",
         robust_loss=None,
@@ -387,6 +443,7 @@ impl PyPoseGraph {
         relative_cost_tolerance=None,
         initial_lambda_scale=None,
         max_lambda_decrease=None,
+        max_factor_bytes=None,
     ))]
     #[allow(clippy::too_many_arguments)]
     fn optimize(
@@ -399,6 +456,7 @@ impl PyPoseGraph {
         relative_cost_tolerance: Option<f64>,
         initial_lambda_scale: Option<f64>,
         max_lambda_decrease: Option<f64>,
+        max_factor_bytes: Option<u64>,
     ) -> PyResult<PySolveReport> {
         let params = solver_params(
             initialization,
@@ -409,21 +467,24 @@ impl PyPoseGraph {
                 relative_cost_tolerance,
                 initial_lambda_scale,
                 max_lambda_decrease,
+                max_factor_bytes,
             },
         )?;
         let graph = &mut self.graph;
-        let report = py.detach(|| optimize(graph, &params)).map_err(to_py_err)?;
-        Ok(report.into())
+        let mut poll = SignalPoll::new();
+        let result = py.detach(|| optimize_with_stop(graph, &params, &mut || poll.should_stop()));
+        Ok(poll.finish(result)?.into())
     }
 
-    /// RatSLAM-style relaxation passes.
+    /// RatSLAM-style relaxation passes. Ctrl-C stops them between passes and raises, the graph
+    /// relaxed by the passes done.
     #[pyo3(signature = (passes=100, gain=0.5))]
     fn relax(&mut self, py: Python<'_>, passes: usize, gain: f64) -> PyResult<PyRelaxationReport> {
         let graph = &mut self.graph;
-        let report = py
-            .detach(|| relax(graph, &RelaxationParams { gain, passes }))
-            .map_err(to_py_err)?;
-        Ok(report.into())
+        let params = RelaxationParams { gain, passes };
+        let mut poll = SignalPoll::new();
+        let result = py.detach(|| relax_with_stop(graph, &params, &mut || poll.should_stop()));
+        Ok(poll.finish(result)?.into())
     }
 
     /// Replace the poses by dead reckoning along the odometry edges.
@@ -696,10 +757,11 @@ impl PyExperienceMap {
         }
     }
 
-    /// Correct the vertex poses. `method`: "least_squares" (LM; starts from the current poses by default)
-    /// or "relaxation" (`passes` passes at `gain`).
+    /// Correct the vertex poses. `method`: "least_squares" (LM; starts from the current poses by default;
+    /// `max_factor_bytes` as in `PoseGraph.optimize`) or "relaxation" (`passes` passes at `gain`).
+    /// Ctrl-C stops either between iterations or passes and raises, the map at the corrector's state then.
     #[pyo3(signature = (method="least_squares", passes=100, gain=0.5, initialization="current", robust_loss=None,
-                        robust_scale_chi2=1.0, max_iterations=100))]
+                        robust_scale_chi2=1.0, max_iterations=100, max_factor_bytes=None))]
     #[allow(clippy::too_many_arguments)]
     fn correct(
         &mut self,
@@ -711,6 +773,7 @@ impl PyExperienceMap {
         robust_loss: Option<&str>,
         robust_scale_chi2: f64,
         max_iterations: usize,
+        max_factor_bytes: Option<u64>,
     ) -> PyResult<PyCorrectionReport> {
         let corrector = match method {
             "least_squares" => Corrector::LeastSquares(solver_params(
@@ -722,6 +785,7 @@ impl PyExperienceMap {
                     relative_cost_tolerance: None,
                     initial_lambda_scale: None,
                     max_lambda_decrease: None,
+                    max_factor_bytes,
                 },
             )?),
             "relaxation" => Corrector::Relaxation(RelaxationParams { gain, passes }),
@@ -732,8 +796,9 @@ impl PyExperienceMap {
             }
         };
         let map = &mut self.map;
-        let report = py.detach(|| map.correct(&corrector)).map_err(to_py_err)?;
-        Ok(report.into())
+        let mut poll = SignalPoll::new();
+        let result = py.detach(|| map.correct_with_stop(&corrector, &mut || poll.should_stop()));
+        Ok(poll.finish(result)?.into())
     }
 
     /// Forget the agent's place: frames only look for a vertex to resume from.

@@ -3,7 +3,7 @@
 //! Templates cross as (height, width) float arrays of any layout (float32 or float64; copied once into a
 //! contiguous float32 buffer). Parameters cross as JSON of `ViewCellParams` (the Rust defaults are the
 //! single source). Searches run with the interpreter released.
-use crate::convert::{candidate_ids, params_from_json, params_to_json, to_numpy, CandidatesArg};
+use crate::convert::{candidate_ids, params_to_json, section_from_json, to_numpy, CandidatesArg};
 use crate::errors::{to_py_err, HippoNavError};
 use hippo_views::{ViewCellParams, ViewCells, ViewObservation, ViewStatus};
 use numpy::{IntoPyArray, PyArray1, PyArrayDyn, PyReadonlyArrayDyn, PyUntypedArrayMethods};
@@ -102,7 +102,7 @@ impl PyViewCells {
     #[new]
     #[pyo3(signature = (params_json=None))]
     fn new(params_json: Option<&str>) -> PyResult<Self> {
-        let params: ViewCellParams = params_from_json(params_json, "view-cell config")?;
+        let params: ViewCellParams = section_from_json(params_json, "view-cell config", "views")?;
         Ok(Self {
             cells: ViewCells::new(params).map_err(to_py_err)?,
         })

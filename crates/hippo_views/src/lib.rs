@@ -25,4 +25,4 @@ pub mod words;
 
 pub use cells::{ViewCells, ViewMatch, ViewObservation, ViewStatus};
 pub use error::ViewError;
-pub use params::ViewCellParams;
+pub use params::{ViewCellParams, MAX_TEMPLATE_VALUES};

@@ -31,6 +31,9 @@ pub struct ViewCellParams {
     pub coarse_rows: usize,
 }
 
+/// Values of a template at most (`width_px · height_px`): every view cell stores one, 256 kB at this size.
+pub const MAX_TEMPLATE_VALUES: usize = 1 << 16;
+
 impl Default for ViewCellParams {
     fn default() -> Self {
         Self {
@@ -73,6 +76,15 @@ impl ViewCellParams {
                 "use 1 to 4096 rows (e.g. 24)",
             ));
         }
+        if self.template_len() > MAX_TEMPLATE_VALUES {
+            return Err(bad(
+                "width_px",
+                format!("{} (× height_px {})", self.width_px, self.height_px),
+                &format!(
+                    "a template (stored for every view cell) may have {MAX_TEMPLATE_VALUES} values at most"
+                ),
+            ));
+        }
         if 2 * self.max_shift_px >= self.width_px {
             return Err(bad(
                 "max_shift_px",
@@ -88,11 +100,11 @@ impl ViewCellParams {
                 "need 0 ≤ top < bottom ≤ 1 (fractions of the image height)",
             ));
         }
-        if self.patch_size_px % 2 == 0 || self.patch_size_px < 3 {
+        if self.patch_size_px % 2 == 0 || !(3..=255).contains(&self.patch_size_px) {
             return Err(bad(
                 "patch_size_px",
                 self.patch_size_px,
-                "must be odd and at least 3",
+                "must be odd and from 3 to 255",
             ));
         }
         if !(self.novelty_threshold > 0.0 && self.novelty_threshold < 1.0) {
@@ -116,8 +128,8 @@ impl ViewCellParams {
                 "must be finite and ≥ 0",
             ));
         }
-        if self.coarse_rows == 0 {
-            return Err(bad("coarse_rows", self.coarse_rows, "must be at least 1"));
+        if !(1..=4096).contains(&self.coarse_rows) {
+            return Err(bad("coarse_rows", self.coarse_rows, "use 1 to 4096 rows"));
         }
         Ok(())
     }

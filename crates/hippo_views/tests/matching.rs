@@ -241,9 +241,19 @@ fn bad_input_is_rejected_with_a_reason() {
         .contains("novelty_threshold"));
     let even_patch = ViewCellParams {
         patch_size_px: 4,
-        ..p
+        ..p.clone()
     };
     assert!(ViewCells::new(even_patch).is_err());
+    // A template is stored for every cell: one of gigabytes is refused, not allocated per cell.
+    let huge = ViewCellParams {
+        width_px: 4096,
+        height_px: 4096,
+        ..p
+    };
+    assert!(ViewCells::new(huge)
+        .unwrap_err()
+        .to_string()
+        .contains("values at most"));
 }
 
 #[test]

@@ -18,23 +18,26 @@ from typing import Any
 
 import cv2
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 
 from hippo_nav._core import HippoNavError
+from hippo_nav._defaults import ConfigSection
 
 
-class ClosureConfig(BaseModel):
+class ClosureConfig(ConfigSection):
     """Geometric loop-closure parameters (the map's `closure` mode chooses whether they are used)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(frozen=True)
 
     orb_features: int = Field(500, ge=16, le=20000, description="ORB corners detected per left image")
-    keyframe_features: int = Field(300, ge=16, description="strongest stereo features a keyframe keeps")
+    keyframe_features: int = Field(
+        300, ge=16, le=20000, description="strongest stereo features a keyframe keeps"
+    )
     ratio_test: float = Field(0.8, gt=0.0, le=1.0, description="Lowe's ratio for descriptor matches")
     ransac_reprojection_px: float = Field(2.0, gt=0.0, description="PnP RANSAC inlier threshold")
-    ransac_iterations: int = Field(300, ge=10)
+    ransac_iterations: int = Field(300, ge=10, le=100_000)
     min_inliers: int = Field(
-        30, ge=6, description="fewer PnP inliers reject a closure (unrelated places give < 10)"
+        30, ge=6, le=20000, description="fewer PnP inliers reject a closure (unrelated places give < 10)"
     )
     min_inlier_ratio: float = Field(
         0.25, ge=0.0, le=1.0, description="inliers / descriptor matches below this reject a closure"
@@ -49,7 +52,10 @@ class ClosureConfig(BaseModel):
     sigma_floor_xy_m: float = Field(0.05, gt=0.0, description="least position uncertainty of a loop link")
     sigma_floor_yaw_rad: float = Field(0.005, gt=0.0, description="least heading uncertainty of a loop link")
     covariance_inflation: float = Field(
-        4.0, ge=1.0, description="factor on the measured pose's covariance (for errors the model leaves out)"
+        4.0,
+        ge=1.0,
+        le=1e6,
+        description="factor on the measured pose's covariance (for errors the model leaves out)",
     )
     pixel_sigma_px: float = Field(
         0.7, gt=0.0, le=10.0, description="standard deviation of an ORB corner's position (px)"
@@ -57,7 +63,9 @@ class ClosureConfig(BaseModel):
     disparity_sigma_px: float = Field(
         0.3, gt=0.0, le=10.0, description="standard deviation of a stereo disparity (px)"
     )
-    candidates_per_frame: int = Field(2, ge=1, description="candidate vertices measured per frame at most")
+    candidates_per_frame: int = Field(
+        2, ge=1, le=100, description="candidate vertices measured per frame at most"
+    )
     anchor_neighbours: int = Field(
         1,
         ge=0,

@@ -19,6 +19,7 @@ pair `P1[0, 3] = −fx · baseline_m`. Poses are `world_from_camera` (camera 0) 
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -26,6 +27,8 @@ from pathlib import Path
 from typing import ClassVar, Protocol, runtime_checkable
 
 import numpy as np
+
+from hippo_nav.io.errors import DatasetError
 
 
 @dataclass(frozen=True)
@@ -63,6 +66,84 @@ class StereoCalibration:
     def baseline_m(self) -> float:
         """Distance between the left and right camera centres: −P1[0,3] / P1[0,0]."""
         return float(-self.P1[0, 3] / self.P1[0, 0])
+
+
+# What a real stereo camera looks like (`check_calibration`): a calibration outside these ranges is a typo, a
+# value in the wrong unit (mm for m), or a file of another camera.
+FIELD_OF_VIEW_DEG = (1.0, 175.0)
+"""Horizontal field of view of a rectified (pinhole) camera: a telephoto lens to a fisheye's pinhole part."""
+MAX_FOCAL_RATIO = 2.0
+"""fx / fy (either way): pixels are square within this factor (anamorphic lenses stay under 2)."""
+PRINCIPAL_POINT_MARGIN = 0.5
+"""The principal point lies in the image widened by this fraction of its size on every side."""
+BASELINE_M = (1e-3, 20.0)
+"""Distance between the stereo cameras: a phone's or a micro drone's pair to a survey rig's."""
+MAX_IMAGE_PIXELS = 1 << 26
+"""Pixels of an image at most (67 million: 8192 × 8192; KITTI's have 0.47 million). A larger image, or a
+file that declares one, is refused before it is decoded: its buffers would take gigabytes."""
+
+
+def check_intrinsics(
+    fx: float, fy: float, cx: float, cy: float, image_size_px: tuple[int, int], where: str
+) -> None:
+    """Raise a `DatasetError` naming `where`, the value and the plausible range when a pinhole camera's
+    focal lengths and principal point (pixels) cannot be those of a real camera with images of
+    `image_size_px` (width, height)."""
+    width, height = image_size_px
+    if not (width >= 1 and height >= 1 and width * height <= MAX_IMAGE_PIXELS):
+        raise DatasetError(
+            f"{where}: image size {width}x{height} px; images of 1 to {MAX_IMAGE_PIXELS} pixels are read"
+        )
+    low_deg, high_deg = FIELD_OF_VIEW_DEG
+    fx_min = width / (2.0 * math.tan(math.radians(high_deg) / 2.0))
+    fx_max = width / (2.0 * math.tan(math.radians(low_deg) / 2.0))
+    if not fx_min <= fx <= fx_max:
+        problem = (
+            f"gives a horizontal field of view of {math.degrees(2.0 * math.atan(width / (2.0 * fx))):.2f}° over "
+            f"{width} px"
+            if fx > 0
+            else "is not a focal length"
+        )
+        raise DatasetError(
+            f"{where}: fx = {fx:g} px {problem}; a camera sees {low_deg:g}° to {high_deg:g}°, i.e. fx from "
+            f"{fx_min:.4g} to {fx_max:.4g} px at this width"
+        )
+    if not fx / MAX_FOCAL_RATIO <= fy <= fx * MAX_FOCAL_RATIO:
+        raise DatasetError(
+            f"{where}: fy = {fy:g} px against fx = {fx:g} px; pixels are square within a factor "
+            f"{MAX_FOCAL_RATIO:g} (fy from {fx / MAX_FOCAL_RATIO:.4g} to {fx * MAX_FOCAL_RATIO:.4g} px)"
+        )
+    for name, value, side in (("cx", cx, width), ("cy", cy, height)):
+        low, high = -PRINCIPAL_POINT_MARGIN * side, (1.0 + PRINCIPAL_POINT_MARGIN) * side
+        if not low <= value <= high:
+            raise DatasetError(
+                f"{where}: the principal point's {name} = {value:g} px lies far outside the {width}x{height} "
+                f"px image; it must lie from {low:g} to {high:g} px (the image centre is "
+                f"{(width - 1) / 2:g}, {(height - 1) / 2:g})"
+            )
+
+
+def check_calibration(calibration: StereoCalibration, where: str) -> StereoCalibration:
+    """`calibration` when it is a plausible rectified stereo rig (`check_intrinsics` of camera 0, a
+    baseline within `BASELINE_M`), else a `DatasetError` naming `where`, the value and the plausible range.
+    Every loader checks the calibration it builds here, once, when the dataset is opened."""
+    if not (np.isfinite(calibration.P0).all() and np.isfinite(calibration.P1).all()):
+        raise DatasetError(f"{where}: the projection matrices hold NaN or infinity")
+    check_intrinsics(
+        calibration.fx, calibration.fy, calibration.cx, calibration.cy, calibration.image_size_px, where
+    )
+    if not calibration.P1[0, 0] > 0:
+        raise DatasetError(
+            f"{where}: the right camera's fx (P1[0,0] = {calibration.P1[0, 0]:g}) must be positive"
+        )
+    baseline_m = calibration.baseline_m
+    low_m, high_m = BASELINE_M
+    if not low_m <= baseline_m <= high_m:
+        raise DatasetError(
+            f"{where}: the stereo baseline is {baseline_m:g} m; a stereo rig's lies from {low_m * 1000:g} mm to "
+            f"{high_m:g} m (check the unit, metres, and that P1[0,3] = −fx·baseline)"
+        )
+    return calibration
 
 
 @dataclass(frozen=True)

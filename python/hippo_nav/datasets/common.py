@@ -15,14 +15,15 @@ moment after the cameras), and `.note` says how many were left out.
 from __future__ import annotations
 
 import re
+import struct
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 
-from hippo_nav.datasets.base import StereoCalibration
-from hippo_nav.io.errors import DatasetError, file_error, read_text
+from hippo_nav.datasets.base import MAX_IMAGE_PIXELS, StereoCalibration, check_calibration
+from hippo_nav.io.errors import MAX_SETTINGS_FILE_BYTES, DatasetError, file_error, read_bytes, read_text
 from hippo_nav.io.poses import matrix_from_quaternion, quaternion_from_matrix
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".pgm", ".ppm", ".bmp", ".tif", ".tiff")
@@ -37,7 +38,7 @@ def read_yaml(path: Path, what: str) -> dict[str, Any]:
 
     if not path.is_file():
         raise DatasetError(f"{path}: {what} not found")
-    text = read_text(path, what)
+    text = read_text(path, what, MAX_SETTINGS_FILE_BYTES)
     skipped = 0
     if text.startswith("%YAML:"):
         text, skipped = (text.split("\n", 1)[1] if "\n" in text else ""), 1
@@ -86,14 +87,21 @@ def yaml_numbers(data: dict[str, Any], key: str, path: Path, count: int | None, 
 
 
 def rectified_calibration(
-    fx: float, fy: float, cx: float, cy: float, baseline_m: float, image_size_px: tuple[int, int]
+    fx: float,
+    fy: float,
+    cx: float,
+    cy: float,
+    baseline_m: float,
+    image_size_px: tuple[int, int],
+    where: str,
 ) -> StereoCalibration:
-    """The calibration of an already rectified pair: P0 = K[I|0], P1 = K[I|(−b, 0, 0)]."""
+    """The calibration of an already rectified pair: P0 = K[I|0], P1 = K[I|(−b, 0, 0)], checked for
+    plausibility (`check_calibration`; `where` names the file it came from)."""
     K = np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
     p0 = np.hstack([K, np.zeros((3, 1))])
     p1 = p0.copy()
     p1[0, 3] = -fx * baseline_m
-    return StereoCalibration(p0, p1, None, None, image_size_px)
+    return check_calibration(StereoCalibration(p0, p1, None, None, image_size_px), where)
 
 
 def natural_key(name: str) -> list[Any]:
@@ -114,14 +122,118 @@ def to_gray(image: np.ndarray, where: str) -> np.ndarray:
     return np.ascontiguousarray(image)
 
 
-def read_image(path: Path) -> np.ndarray:
-    """Load an 8-bit image file as (H, W) uint8 gray."""
+MAX_IMAGE_FILE_BYTES = 512 * 2**20
+"""An image file larger than this is refused before it is read (an uncompressed 8192 × 8192 RGBA has 256 MiB)."""
+
+_JPEG_STANDALONE = {0x01, *range(0xD0, 0xDA)}
+_JPEG_SOF = set(range(0xC0, 0xD0)) - {0xC4, 0xC8, 0xCC}
+
+
+def image_size_in_header(data: bytes) -> tuple[int, int] | None:
+    """(width, height) an encoded image declares (PNG, JPEG, BMP, PNM, TIFF, WebP), read from its header
+    without decoding anything; None for another format or a header too broken to tell."""
+    try:
+        if data[:8] == b"\x89PNG\r\n\x1a\n" and data[12:16] == b"IHDR":
+            return struct.unpack(">II", data[16:24])
+        if data[:2] == b"BM":
+            if struct.unpack("<I", data[14:18])[0] == 12:  # OS/2 header: 16-bit sides
+                return struct.unpack("<HH", data[18:22])
+            width, height = struct.unpack("<ii", data[18:26])
+            return abs(width), abs(height)
+        if data[:1] == b"P" and data[1:2] in (b"1", b"2", b"3", b"4", b"5", b"6"):
+            head = re.sub(rb"#[^\n]*", b" ", data[2:4096]).split()
+            return int(head[0]), int(head[1])
+        if data[:4] in (b"II*\x00", b"MM\x00*"):
+            return _tiff_size(data)
+        if data[:2] == b"\xff\xd8":
+            return _jpeg_size(data)
+        if data[:4] == b"RIFF" and data[8:12] == b"WEBP":
+            return _webp_size(data)
+    except (struct.error, ValueError, IndexError):
+        return None
+    return None
+
+
+def _jpeg_size(data: bytes) -> tuple[int, int] | None:
+    at = 2
+    while at + 4 <= len(data):
+        if data[at] != 0xFF:
+            return None
+        marker = data[at + 1]
+        if marker == 0xFF:  # fill byte
+            at += 1
+        elif marker in _JPEG_STANDALONE:
+            at += 2
+        elif marker in _JPEG_SOF:
+            height, width = struct.unpack(">HH", data[at + 5 : at + 9])
+            return width, height
+        else:
+            at += 2 + struct.unpack(">H", data[at + 2 : at + 4])[0]
+    return None
+
+
+def _tiff_size(data: bytes) -> tuple[int, int] | None:
+    order = "<" if data[:2] == b"II" else ">"
+    ifd = struct.unpack(order + "I", data[4:8])[0]
+    (count,) = struct.unpack(order + "H", data[ifd : ifd + 2])
+    sides: dict[int, int] = {}
+    for k in range(count):
+        entry = ifd + 2 + 12 * k
+        tag, kind = struct.unpack(order + "HH", data[entry : entry + 4])
+        if tag in (256, 257):
+            value = data[entry + 8 : entry + 12]
+            sides[tag] = struct.unpack(order + ("H" if kind == 3 else "I"), value[: 2 if kind == 3 else 4])[0]
+    return (sides[256], sides[257]) if len(sides) == 2 else None
+
+
+def _webp_size(data: bytes) -> tuple[int, int] | None:
+    chunk = data[12:16]
+    if chunk == b"VP8X":
+        return 1 + int.from_bytes(data[24:27], "little"), 1 + int.from_bytes(data[27:30], "little")
+    if chunk == b"VP8L":
+        bits = int.from_bytes(data[21:25], "little")
+        return 1 + (bits & 0x3FFF), 1 + ((bits >> 14) & 0x3FFF)
+    if chunk == b"VP8 ":
+        width, height = struct.unpack("<HH", data[26:30])
+        return width & 0x3FFF, height & 0x3FFF
+    return None
+
+
+def decode_image_bytes(data: bytes, where: str, flags: int = cv2.IMREAD_UNCHANGED) -> np.ndarray | None:
+    """An encoded image decoded by OpenCV (None when OpenCV cannot decode it). An image that declares more
+    than `MAX_IMAGE_PIXELS` pixels is refused from its header, before a buffer is allocated (a 100 kB PNG
+    can declare 100 000 × 100 000 px); OpenCV's own errors are a `DatasetError` naming `where`."""
+    size = image_size_in_header(data)
+    if size is not None and size[0] * size[1] > MAX_IMAGE_PIXELS:
+        raise DatasetError(
+            f"{where}: the image declares {size[0]}x{size[1]} px ({size[0] * size[1]:,} pixels); images of "
+            f"at most {MAX_IMAGE_PIXELS:,} pixels are read: is it the right file?"
+        )
+    try:
+        return cv2.imdecode(np.frombuffer(data, np.uint8), flags)
+    except cv2.error as err:  # OpenCV's own limits (CV_IO_MAX_IMAGE_PIXELS …) raise
+        reason = str(err).strip().splitlines()[-1] if str(err).strip() else "unknown error"
+        raise DatasetError(f"{where}: OpenCV cannot decode the image ({reason})") from None
+
+
+def read_image_file(path: Path, flags: int = cv2.IMREAD_UNCHANGED) -> np.ndarray:
+    """An image file decoded as it is stored (`decode_image_bytes`: sizes checked before decoding; any file
+    name works, the bytes are read here); a missing, oversized or undecodable file is a `DatasetError`."""
     if not path.is_file():
         raise DatasetError(f"{path}: image not found")
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    try:
+        data = read_bytes(path, "image file", MAX_IMAGE_FILE_BYTES)
+    except OSError as err:
+        raise DatasetError(f"{path}: cannot read the image ({err.strerror})") from None
+    image = decode_image_bytes(data, str(path), flags) if data else None
     if image is None:
         raise DatasetError(f"{path}: image is corrupt or not a format OpenCV can read; replace the file")
-    return to_gray(image, str(path))
+    return image
+
+
+def read_image(path: Path) -> np.ndarray:
+    """Load an 8-bit image file as (H, W) uint8 gray."""
+    return to_gray(read_image_file(path), str(path))
 
 
 def check_increasing(stamps_s: np.ndarray, what: str) -> None:

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hippo_nav.datasets.base import StereoFrame, StereoLoader
+from hippo_nav.datasets.base import StereoFrame, StereoLoader, check_intrinsics
 from hippo_nav.datasets.common import (
     FrameSelection,
     check_increasing,
@@ -80,6 +80,7 @@ class CameraFiles:
             raise file_error(sensor, "T_BS's last row must be [0, 0, 0, 1]")
         width, height = yaml_numbers(data, "resolution", sensor, 2, "[width, height]")
         self.image_size_px = (int(width), int(height))
+        check_intrinsics(fu, fv, cu, cv, self.image_size_px, str(sensor))
         self.sensor_path = sensor
 
     @staticmethod

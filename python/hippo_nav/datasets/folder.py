@@ -54,7 +54,7 @@ def list_images(folder: Path) -> list[Path]:
 
 def read_times_file(path: Path, count: int) -> np.ndarray:
     stamps: list[float] = []
-    for number, text in enumerate(read_text(path, "file").splitlines(), start=1):
+    for number, text in enumerate(read_text(path, "timestamps file").splitlines(), start=1):
         if not text.strip() or text.lstrip().startswith("#"):
             continue
         try:
@@ -119,7 +119,7 @@ class StereoFolder(StereoLoader):
                     f"{key}: {calib[key]} but {self._left[0].name} is {size[0]}x{size[1]} px; "
                     "the calibration is for other images",
                 )
-        self.calibration = rectified_calibration(fx, fy, cx, cy, baseline_m, size)
+        self.calibration = rectified_calibration(fx, fy, cx, cy, baseline_m, size, str(calib_path))
 
         times_path = self.root / TIMES_FILE
         if times_path.is_file():

@@ -29,8 +29,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from hippo_nav.datasets.base import StereoCalibration, StereoFrame, StereoLoader
-from hippo_nav.io.errors import DatasetError, file_error, read_text
+from hippo_nav.datasets.base import StereoCalibration, StereoFrame, StereoLoader, check_calibration
+from hippo_nav.datasets.common import read_image_file
+from hippo_nav.io.errors import MAX_SETTINGS_FILE_BYTES, DatasetError, file_error, read_text
 from hippo_nav.io.poses import read_kitti_poses
 
 # Rectified pairs share K; the public calibration files print K to 7 significant digits.
@@ -42,7 +43,9 @@ def read_calibration(calib_path: Path, image_size_px: tuple[int, int]) -> Stereo
     if not calib_path.is_file():
         raise DatasetError(f"{calib_path}: calibration file not found (a KITTI sequence needs calib.txt)")
     matrices: dict[str, np.ndarray] = {}
-    for number, text in enumerate(read_text(calib_path, "calibration").splitlines(), start=1):
+    for number, text in enumerate(
+        read_text(calib_path, "calibration", MAX_SETTINGS_FILE_BYTES).splitlines(), start=1
+    ):
         if not text.strip():
             continue
         key, sep, rest = text.partition(":")
@@ -61,9 +64,14 @@ def read_calibration(calib_path: Path, image_size_px: tuple[int, int]) -> Stereo
         except ValueError as err:
             raise file_error(calib_path, f"{key}: not a number: {err}", number) from None
         if not np.all(np.isfinite(matrix)):
-            raise file_error(calib_path, f"{key} contains NaN or infinity", number)
+            raise file_error(calib_path, f"{key} contains NaN or infinity: {' '.join(fields)}", number)
         if matrix[0, 0] <= 0 or matrix[1, 1] <= 0 or matrix[2, 2] != 1.0:
-            raise file_error(calib_path, f"{key} is not a projection K[I|t] (fx, fy > 0, P[2,2] = 1)", number)
+            raise file_error(
+                calib_path,
+                f"{key} is not a projection K[I|t]: fx = {matrix[0, 0]:g}, fy = {matrix[1, 1]:g}, P[2,2] = "
+                f"{matrix[2, 2]:g} (need fx, fy > 0 and P[2,2] = 1)",
+                number,
+            )
         matrices[key] = matrix
     for required in ("P0", "P1"):
         if required not in matrices:
@@ -74,8 +82,13 @@ def read_calibration(calib_path: Path, image_size_px: tuple[int, int]) -> Stereo
             calib_path, "P0 and P1 have different intrinsics: the images are not a rectified pair"
         )
     if -p1[0, 3] / p1[0, 0] <= 0:
-        raise file_error(calib_path, "P1[0,3] must be negative (right camera at +baseline along x)")
-    return StereoCalibration(p0, p1, matrices.get("P2"), matrices.get("P3"), image_size_px)
+        raise file_error(
+            calib_path,
+            f"P1[0,3] = {p1[0, 3]:g} gives a baseline of {-p1[0, 3] / p1[0, 0]:g} m; P1[0,3] must be negative "
+            "(right camera at +baseline along x)",
+        )
+    calibration = StereoCalibration(p0, p1, matrices.get("P2"), matrices.get("P3"), image_size_px)
+    return check_calibration(calibration, str(calib_path))
 
 
 def read_times(times_path: Path) -> np.ndarray:
@@ -111,11 +124,7 @@ def read_times(times_path: Path) -> np.ndarray:
 
 def read_gray(path: Path) -> np.ndarray:
     """Load an 8-bit image as (H, W) uint8 gray; colour images are converted, other depths rejected."""
-    if not path.is_file():
-        raise DatasetError(f"{path}: image not found")
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise DatasetError(f"{path}: image is corrupt or not a format OpenCV can read; replace the file")
+    image = read_image_file(path)
     if image.dtype != np.uint8:
         raise DatasetError(f"{path}: image has dtype {image.dtype}; KITTI images are 8-bit")
     if image.ndim == 3:

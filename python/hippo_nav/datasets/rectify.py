@@ -20,7 +20,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from hippo_nav.datasets.base import StereoCalibration
+from hippo_nav.datasets.base import StereoCalibration, check_calibration, check_intrinsics
 from hippo_nav.datasets.common import INTRINSICS_TOLERANCE
 from hippo_nav.io.errors import DatasetError
 
@@ -48,11 +48,14 @@ def distortion_kind(model: str, where: str) -> str:
     )
 
 
-def _intrinsics(K: np.ndarray, D: np.ndarray, kind: str, where: str) -> tuple[np.ndarray, np.ndarray]:
+def _intrinsics(
+    K: np.ndarray, D: np.ndarray, kind: str, size: tuple[int, int], where: str
+) -> tuple[np.ndarray, np.ndarray]:
     K = np.asarray(K, dtype=np.float64).reshape(3, 3)
     D = np.asarray(D, dtype=np.float64).reshape(-1)
     if not (np.isfinite(K).all() and np.isfinite(D).all()) or K[0, 0] <= 0 or K[1, 1] <= 0:
         raise DatasetError(f"{where}: intrinsics need positive finite focal lengths, got K = {K.tolist()}")
+    check_intrinsics(K[0, 0], K[1, 1], K[0, 2], K[1, 2], size, where)
     if kind == "fisheye":
         if D.size != 4:
             raise DatasetError(
@@ -157,14 +160,14 @@ def rectify_rig(
 ) -> StereoRectifier:
     """Rectify a calibrated pair (see the module doc); `where` names the calibration in errors."""
     kind = distortion_kind(model, where)
-    K0, D0 = _intrinsics(K0, D0, kind, where)
-    K1, D1 = _intrinsics(K1, D1, kind, where)
+    size = (int(image_size_px[0]), int(image_size_px[1]))
+    K0, D0 = _intrinsics(K0, D0, kind, size, where)
+    K1, D1 = _intrinsics(K1, D1, kind, size, where)
     check_rig(camera0_from_camera1, where)
     camera1_from_camera0 = np.linalg.inv(camera0_from_camera1)
     # OpenCV's fisheye functions need contiguous arrays; slices of a 4×4 are not.
     R = np.ascontiguousarray(camera1_from_camera0[:3, :3])
     T = np.ascontiguousarray(camera1_from_camera0[:3, 3]).reshape(3, 1)
-    size = (int(image_size_px[0]), int(image_size_px[1]))
     try:
         if kind == "fisheye":
             R0, R1, P0, P1, _ = cv2.fisheye.stereoRectify(
@@ -185,13 +188,9 @@ def rectify_rig(
             f"{where}: rectification would scale the images by {zoom:.2f} (focal {K0[0, 0]:.1f} -> "
             f"{P0[0, 0]:.1f} px); the distortion or the relative pose is implausible"
         )
+    calibration = check_calibration(StereoCalibration(P0.copy(), P1.copy(), None, None, size), where)
     return StereoRectifier(
-        (
-            _maps(K0, D0, R0, P0, size, kind),
-            _maps(K1, D1, R1, P1, size, kind),
-        ),
-        StereoCalibration(P0.copy(), P1.copy(), None, None, size),
-        R0.copy(),
+        (_maps(K0, D0, R0, P0, size, kind), _maps(K1, D1, R1, P1, size, kind)), calibration, R0.copy()
     )
 
 
@@ -206,7 +205,7 @@ def rectifier_from_projections(
     size = (int(image_size_px[0]), int(image_size_px[1]))
     prepared = []
     for K, D, R, P in cameras:
-        K, D = _intrinsics(K, D, kind, where)
+        K, D = _intrinsics(K, D, kind, size, where)
         R = np.asarray(R, dtype=np.float64).reshape(3, 3)
         P = np.asarray(P, dtype=np.float64).reshape(3, 4)
         if np.abs(R.T @ R - np.eye(3)).max() > 1e-3:
@@ -216,10 +215,9 @@ def rectifier_from_projections(
         prepared.append((K, D, R, P))
     (K0, D0, R0, P0), (K1, D1, R1, P1) = prepared
     check_projections(P0, P1, where)
+    calibration = check_calibration(StereoCalibration(P0.copy(), P1.copy(), None, None, size), where)
     return StereoRectifier(
-        (_maps(K0, D0, R0, P0, size, kind), _maps(K1, D1, R1, P1, size, kind)),
-        StereoCalibration(P0.copy(), P1.copy(), None, None, size),
-        R0.copy(),
+        (_maps(K0, D0, R0, P0, size, kind), _maps(K1, D1, R1, P1, size, kind)), calibration, R0.copy()
     )
 
 

@@ -40,10 +40,11 @@ from typing import Any
 import cv2
 import numpy as np
 
-from hippo_nav.datasets.base import StereoCalibration, StereoFrame, StereoLoader
+from hippo_nav.datasets.base import StereoCalibration, StereoFrame, StereoLoader, check_calibration
 from hippo_nav.datasets.common import (
     FrameSelection,
     check_increasing,
+    decode_image_bytes,
     ground_truth_at_frames,
     pair_by_time,
     read_yaml,
@@ -96,7 +97,7 @@ def bag_path(path: Path) -> Path | None:
 def decode_image(msg: Any, msgtype: str, where: str) -> np.ndarray:
     """(H, W) uint8 gray of a sensor_msgs Image (mono8, bgr8, rgb8, bgra8, rgba8, bayer_*8) or CompressedImage."""
     if msgtype.endswith("CompressedImage"):
-        image = cv2.imdecode(np.frombuffer(bytes(msg.data), np.uint8), cv2.IMREAD_UNCHANGED)
+        image = decode_image_bytes(bytes(msg.data), where)
         if image is None:
             raise DatasetError(f"{where}: compressed image ({msg.format!r}) cannot be decoded by OpenCV")
         return to_gray(image, where)
@@ -177,6 +178,13 @@ class RosbagStereo(StereoLoader):
         self.path = opened
         self.name = opened.stem if opened.is_file() else opened.name
         config = self._settings(topics, settings)
+        # Where fx, fy, cx, cy and baseline_m came from, for the message when they are implausible.
+        from_options = any(settings.get(k) is not None for k in ("fx", "fy", "cx", "cy", "baseline_m"))
+        self._calibration_source = (
+            f"{opened} (the fx, fy, cx, cy, baseline_m options)"
+            if from_options or topics is None
+            else str(topics)
+        )
 
         try:
             from rosbags.highlevel import AnyReader
@@ -376,13 +384,11 @@ class RosbagStereo(StereoLoader):
             if missing:
                 raise DatasetError(f"{self.path}: calibration given in part; also give {', '.join(missing)}")
             fx, fy, cx, cy, baseline_m = (float(config[k]) for k in ("fx", "fy", "cx", "cy", "baseline_m"))
-            if not (fx > 0 and fy > 0 and baseline_m > 0):
-                raise DatasetError(f"{self.path}: fx, fy and baseline_m must be positive")
             if config.get("rectified") is False:
                 raise DatasetError(
                     f"{self.path}: fx/fy/cx/cy/baseline_m describe rectified images; drop rectified: false"
                 )
-            return rectified_calibration(fx, fy, cx, cy, baseline_m, size)
+            return rectified_calibration(fx, fy, cx, cy, baseline_m, size, self._calibration_source)
 
         infos = []
         for role, image_topic in (("left", self._left.name), ("right", self._right.name)):
@@ -417,7 +423,7 @@ class RosbagStereo(StereoLoader):
         if rectified:
             p0, p1 = cameras[0][3], cameras[1][3]
             check_projections(p0, p1, where)
-            return StereoCalibration(p0.copy(), p1.copy(), None, None, size)
+            return check_calibration(StereoCalibration(p0.copy(), p1.copy(), None, None, size), where)
         self.rectifier = rectifier_from_projections(tuple(c[:4] for c in cameras), size, cameras[0][4], where)
         return self.rectifier.calibration
 

@@ -18,7 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hippo_nav.io.errors import DatasetError, file_error
+from hippo_nav.io.atomic import open_atomic
+from hippo_nav.io.errors import DatasetError, file_error, read_text
 
 # A 3×3 block read from a file counts as a rotation when RᵀR = I and det R = 1 within this tolerance.
 # Files are often written with 6–9 significant digits, so exactness cannot be asked for; a corrupt or
@@ -56,9 +57,9 @@ def _lines(path: str | Path) -> tuple[Path, list[str]]:
     if not path.is_file():
         raise DatasetError(f"{path}: pose file not found (check the path)")
     try:
-        text = path.read_text()
-    except (OSError, UnicodeDecodeError) as err:
-        raise file_error(path, f"cannot be read as text: {err}") from None
+        text = read_text(path, "pose file")  # bounded in size, one line for a byte that is not UTF-8
+    except OSError as err:
+        raise file_error(path, f"cannot be read ({err.strerror or err})") from None
     lines = text.splitlines()
     while lines and not lines[-1].strip():
         lines.pop()  # a trailing newline or blank tail is not a pose
@@ -93,7 +94,8 @@ def write_kitti_poses(path: str | Path, world_from_camera: np.ndarray) -> Path:
     poses = _validated_poses(world_from_camera)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    np.savetxt(path, poses[:, :3, :4].reshape(len(poses), 12), fmt="%.9e")
+    with open_atomic(path, "wb") as f:
+        np.savetxt(f, poses[:, :3, :4].reshape(len(poses), 12), fmt="%.9e")
     return path
 
 
@@ -174,5 +176,6 @@ def write_tum(path: str | Path, timestamps_s: np.ndarray, world_from_camera: np.
     rows[:, 4:] = [quaternion_from_matrix(p[:3, :3]) for p in poses]
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    np.savetxt(path, rows, fmt="%.9f %.9e %.9e %.9e %.12f %.12f %.12f %.12f")
+    with open_atomic(path, "wb") as f:
+        np.savetxt(f, rows, fmt="%.9f %.9e %.9e %.9e %.12f %.12f %.12f %.12f")
     return path

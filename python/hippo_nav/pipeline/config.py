@@ -34,8 +34,6 @@ from pathlib import Path
 from typing import Any, Literal
 
 from pydantic import (
-    BaseModel,
-    ConfigDict,
     Field,
     ValidationError,
     ValidationInfo,
@@ -44,17 +42,22 @@ from pydantic import (
 )
 
 from hippo_nav._core import HippoNavError
+from hippo_nav._defaults import ConfigSection
 from hippo_nav.closure import ClosureConfig
 from hippo_nav.engine import EngineConfig
-from hippo_nav.io import read_text
+from hippo_nav.io.errors import MAX_SETTINGS_FILE_BYTES, read_text
 from hippo_nav.map import ClosureMode, MapParams
 from hippo_nav.pipeline.parts import REGISTRIES
 from hippo_nav.view_cells import TemplateViewConfig, WordViewConfig
 from hippo_nav.vo import VoParams
 
+# Counts of frames, cells or iterations: generous, but an int a C library still takes (and no typo of a few
+# extra digits that would run for days).
+_MAX_COUNT = 1_000_000
 
-class _Section(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+
+class _Section(ConfigSection):
+    pass
 
 
 class LesionConfig(_Section):
@@ -92,11 +95,16 @@ class InjectionConfig(_Section):
     """
 
     enabled: bool = True
-    initial_strength: float = Field(1.0, ge=0.0, description="s0, injected on the first familiar frame")
+    initial_strength: float = Field(
+        1.0, ge=0.0, le=1e3, description="s0, injected on the first familiar frame"
+    )
     decay_per_frame: float = Field(0.7, gt=0.0, le=1.0, description="factor per frame the view stays active")
     min_strength: float = Field(0.05, ge=0.0, description="below this strength nothing is injected")
     revisit_gap_frames: int = Field(
-        20, ge=0, description="a cell injects only when it was last active more than this many frames ago"
+        20,
+        ge=0,
+        le=_MAX_COUNT,
+        description="a cell injects only when it was last active more than this many frames ago",
     )
     shift_heading: bool = Field(True, description="rotate the stored HD profile by the relative heading")
     placement: Literal["as_stored", "measured"] = Field(
@@ -126,7 +134,7 @@ class ViewSearchConfig(_Section):
     near_only: bool = True
     radius_margin_m: float = Field(20.0, ge=0.0)
     max_radius_m: float = Field(200.0, gt=0.0)
-    recent_cells: int = Field(30, ge=0)
+    recent_cells: int = Field(30, ge=0, le=_MAX_COUNT)
     passage_m: float = Field(
         50.0, ge=0.0, description="cells made within this much travel belong to the current passage"
     )
@@ -163,8 +171,8 @@ class CorrectionConfig(_Section):
         "default: a single true closure after a long drift has a large residual and would be rejected.",
     )
     robust_scale_chi2: float = Field(1.0, gt=0.0)
-    max_iterations: int = Field(100, ge=1)
-    relaxation_passes: int = Field(200, ge=1)
+    max_iterations: int = Field(100, ge=1, le=100_000)
+    relaxation_passes: int = Field(200, ge=1, le=_MAX_COUNT)
     relaxation_gain: float = Field(0.5, gt=0.0, lt=1.0)
 
 
@@ -269,8 +277,11 @@ def describe_validation_error(err: ValidationError) -> str:
 def _describe(err: ValidationError) -> str:
     parts = []
     for e in err.errors():
-        where = ".".join(str(p) for p in e["loc"]) or "(top level)"
+        where = "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in e["loc"]).lstrip(".")
+        where = where or "(top level)"
         message = e["msg"].replace("\n", " ")
+        if e["type"] == "value_error":
+            message = message.removeprefix("Value error, ")
         given = e.get("input")
         shown = "" if isinstance(given, (dict, list)) or given is None else f" (got {given!r})"
         parts.append(f"{where}: {message}{shown}")
@@ -291,7 +302,7 @@ def load_config(path: str | Path | None) -> PipelineConfig:
         return PipelineConfig()
     path = Path(path)
     try:
-        text = read_text(path, "config file")
+        text = read_text(path, "config file", MAX_SETTINGS_FILE_BYTES)
     except OSError as err:
         raise HippoNavError(f"{path}: cannot read the config file ({err.strerror})") from None
     try:

@@ -47,6 +47,7 @@ from matplotlib.figure import Figure
 
 from hippo_nav.engine.config import MODULE_NAMES, N_MODULES
 from hippo_nav.geometry import planar_xy
+from hippo_nav.io.atomic import atomic_path
 
 DEFAULT_TORUS_PERIOD_M = 100.0
 # The paper colour-codes rates "by the jet colormap from blue (zero) to red (high)"; kept for comparison.
@@ -61,7 +62,8 @@ def _new_figure(width_in: float, height_in: float) -> Figure:
 
 
 def _save(figure: Figure, path: Path, dpi: int) -> Path:
-    figure.savefig(path, dpi=dpi)
+    with atomic_path(path) as tmp:
+        figure.savefig(tmp, dpi=dpi)
     return path
 
 
@@ -411,11 +413,14 @@ def write_run_figures(
     out: Path,
     rate_map_bin_m: float = 4.0,
     torus_period_m: float = DEFAULT_TORUS_PERIOD_M,
+    written: list[Path] | None = None,
 ) -> list[Path]:
     """Every figure of a run into `out`; returns their paths. `torus_period_m`: the engine's
-    `torus_period_m` (the folded rate maps fold positions modulo it)."""
+    `torus_period_m` (the folded rate maps fold positions modulo it). `written`, when given, gets each
+    path as soon as its file is written (so an interrupted call still tells which are there)."""
     out = Path(out)
-    paths = [plot_cognitive_map(result, out / "cognitive_map.png")]
+    paths = written if written is not None else []
+    paths.append(plot_cognitive_map(result, out / "cognitive_map.png"))
     for position, snapshot in sorted(result.record.snapshots.items()):
         frame = snapshot["frame_index"]
         paths.append(

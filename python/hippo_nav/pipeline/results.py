@@ -33,6 +33,7 @@ closure (a closure every few metres along a revisited street counts the whole st
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import fcntl
 import json
@@ -40,10 +41,13 @@ import logging
 import math
 import os
 import resource
+import shutil
 import sys
 import tempfile
 import time
 from collections import Counter
+from collections.abc import Callable
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any
@@ -52,6 +56,7 @@ import numpy as np
 
 from hippo_nav._core import HippoNavError
 from hippo_nav.io import write_kitti_poses, write_tum
+from hippo_nav.io.atomic import WriteError, open_atomic, write_text
 from hippo_nav.map import ExperienceMap
 from hippo_nav.metrics import KITTI_SEGMENT_LENGTHS_M, ate_rmse, relative_errors_kitti, trajectory_distances_m
 from hippo_nav.pipeline.config import PipelineConfig, resolved_config_dict
@@ -416,7 +421,7 @@ def format_bump_table(rows: list[dict[str, Any]]) -> str:
 
 
 def _write_frames_csv(path: Path, record: RunRecord) -> None:
-    with path.open("w", newline="") as f:
+    with open_atomic(path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(
             [
@@ -441,12 +446,33 @@ def _write_frames_csv(path: Path, record: RunRecord) -> None:
 
 
 def _write_bump_table(path: Path, rows: list[dict[str, Any]]) -> None:
-    with path.open("w", newline="") as f:
+    with open_atomic(path, "w", newline="") as f:
         names = ["frame", "what", "k", "bump", "mu_x_rad", "mu_y_rad", "sigma_x_rad", "sigma_y_rad"]
         w = csv.DictWriter(f, fieldnames=names)
         w.writeheader()
         for r in rows:
             w.writerow({k: (f"{v:.6f}" if isinstance(v, float) else v) for k, v in r.items()})
+
+
+class ResultsNotWrittenError(WriteError):
+    """The results folder could not be written (read-only, full, removed); `rescued_to` is the folder the
+    whole results were written to instead, or None when that failed too (the results are then only in
+    the exception's `result`)."""
+
+    def __init__(self, failure: WriteError, rescued_to: Path | None, rescue_error: str | None = None) -> None:
+        self.rescued_to = rescued_to
+        super().__init__(failure.path, failure.reason)
+        if rescued_to is not None:
+            where = f"the whole results are written to {rescued_to} instead"
+        else:
+            where = f"and they could not be written elsewhere either ({rescue_error}); nothing was saved"
+        self.args = (f"cannot write {failure.path}: {failure.reason}; {where}",)
+
+
+def rescue_folder_candidates() -> list[Path]:
+    """Where results go when their folder cannot take them: the system's temporary folder, then the
+    home folder (a full temporary file system is common on small machines)."""
+    return [Path(tempfile.gettempdir()), Path.home()]
 
 
 def write_results(
@@ -455,14 +481,88 @@ def write_results(
     config: PipelineConfig,
     frontend: dict[str, Any] | None = None,
     experience_map: ExperienceMap | None = None,
+    shield: Callable[[], AbstractContextManager[Any]] = contextlib.nullcontext,
 ) -> None:
     """Write the results folder of a run (module doc); `result.out_dir` is set. `frontend`: the resolved
-    front-end parameters for config.json; `experience_map`: the map to save (map.bin, map.g2o)."""
-    out.mkdir(parents=True, exist_ok=True)
+    front-end parameters for config.json; `experience_map`: the map to save (map.bin, map.g2o); `shield`:
+    a context in which signals wait (the runner's), entered for everything but the figures, which an
+    interrupt only cuts short (the figures drawn by then are listed in metrics.json).
+
+    Every file is written atomically (`hippo_nav.io.atomic`): none is ever left truncated. When the folder
+    stops taking files (read-only, full, removed), the whole results are written to a fresh folder
+    elsewhere (`rescue_folder_candidates`) and `ResultsNotWrittenError` names the file that failed and
+    that folder, so no finished run is lost."""
+    try:
+        _write_results(result, out, config, frontend, experience_map, shield)
+    except WriteError as failure:
+        log.error("%s", failure)
+        rescue_error = "no folder to write to"
+        for parent in rescue_folder_candidates():
+            rescue = None
+            try:
+                rescue = Path(tempfile.mkdtemp(prefix="hippo_nav_results_", dir=parent))
+                _write_results(result, rescue, config, frontend, experience_map, shield)
+            except (OSError, WriteError) as err:
+                rescue_error = str(err)
+                if rescue is not None:
+                    shutil.rmtree(rescue, ignore_errors=True)
+                continue
+            raise ResultsNotWrittenError(failure, rescue) from None
+        raise ResultsNotWrittenError(failure, None, rescue_error) from None
+
+
+def _write_results(
+    result: RunResult,
+    out: Path,
+    config: PipelineConfig,
+    frontend: dict[str, Any] | None,
+    experience_map: ExperienceMap | None,
+    shield: Callable[[], AbstractContextManager[Any]],
+) -> None:
+    with shield():
+        _write_data(result, out, config, frontend, experience_map)
+    metrics = result.metrics
+    if config.output.figures:
+        from hippo_nav.pipeline.plots import write_run_figures
+
+        clock = time.perf_counter()
+        written: list[Path] = []
+        try:
+            write_run_figures(
+                result, out, config.output.rate_map_bin_m, config.engine.torus_period_m, written=written
+            )
+        except KeyboardInterrupt:
+            log.warning("figures interrupted after %d; the other results are written", len(written))
+            metrics.setdefault("unavailable", {})["figures"] = "interrupted"
+        except WriteError:
+            raise  # the folder stopped taking files: `write_results` writes everything elsewhere
+        except Exception as err:  # noqa: BLE001 - a figure must never cost the written results
+            log.warning("figures failed (%s: %s); the other results are written", type(err).__name__, err)
+            metrics.setdefault("unavailable", {})["figures"] = f"{type(err).__name__}: {err}"
+        metrics["figures"] = [p.name for p in written]
+        metrics["timing"]["figures_s"] = time.perf_counter() - clock
+    with shield():
+        write_text(out / "metrics.json", json.dumps(_clean(metrics), indent=2) + "\n")
+
+
+def _write_data(
+    result: RunResult,
+    out: Path,
+    config: PipelineConfig,
+    frontend: dict[str, Any] | None,
+    experience_map: ExperienceMap | None,
+) -> None:
+    """Everything but the figures, trajectories first (module doc)."""
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:
+        raise WriteError(out, "it is not a folder any more") from None
+    except OSError as err:
+        raise WriteError(out, err.strerror or str(err)) from None
     clock = time.perf_counter()
     resolved = resolved_config_dict(config)
     resolved.update(frontend or {})
-    (out / "config.json").write_text(json.dumps(resolved, indent=2) + "\n")
+    write_text(out / "config.json", json.dumps(resolved, indent=2) + "\n")
     times = np.asarray(result.record.column("timestamp_s"))
     for name, poses in result.estimates.items():
         write_kitti_poses(out / f"trajectory_{name}.kitti.txt", poses)
@@ -475,26 +575,11 @@ def write_results(
     result.out_dir = out
     metrics = result.metrics
     metrics["timing"]["write_s"] = time.perf_counter() - clock
-    # Written before the map and the figures too, so an interrupt while plotting still leaves the metrics.
-    (out / "metrics.json").write_text(json.dumps(_clean(metrics), indent=2) + "\n")
+    # Written before the map and the figures too, so that whatever happens then the metrics are there.
+    write_text(out / "metrics.json", json.dumps(_clean(metrics), indent=2) + "\n")
     if config.output.save_map and experience_map is not None:
-        experience_map.save(out / "map.bin")
-        experience_map.write_g2o(out / "map.g2o")
-    if config.output.figures:
-        from hippo_nav.pipeline.plots import write_run_figures
-
-        clock = time.perf_counter()
-        try:
-            written = write_run_figures(
-                result, out, config.output.rate_map_bin_m, config.engine.torus_period_m
-            )
-            metrics["figures"] = [p.name for p in written]
-        except KeyboardInterrupt:
-            log.warning("figures interrupted; the other results are written")
-            metrics["figures"] = []
-        except Exception as err:  # noqa: BLE001 - a figure must never cost the written results
-            log.warning("figures failed (%s: %s); the other results are written", type(err).__name__, err)
-            metrics["figures"] = []
-            metrics.setdefault("unavailable", {})["figures"] = f"{type(err).__name__}: {err}"
-        metrics["timing"]["figures_s"] = time.perf_counter() - clock
-    (out / "metrics.json").write_text(json.dumps(_clean(metrics), indent=2) + "\n")
+        for name, save in (("map.bin", experience_map.save), ("map.g2o", experience_map.write_g2o)):
+            try:
+                save(out / name)
+            except HippoNavError as err:  # the core's file error, as the one every other file gives
+                raise WriteError(out / name, str(err).rsplit(": ", 1)[-1]) from None

@@ -7,8 +7,9 @@ the observers (`observers.FrameEvent`), and at the end the final correction, the
 (`assemble.assemble_result`), the metrics (`results.evaluate`) and the results folder
 (`results.write_results`). The algorithm itself is `system.SlamSystem`.
 
-Ctrl-C (KeyboardInterrupt), SIGTERM and SIGHUP stop after the current frame; everything for the frames
-processed so far is still corrected and written.
+Ctrl-C (SIGINT), SIGTERM and SIGHUP stop after the current frame; everything for the frames processed
+so far is still corrected and written. After the last frame a signal stops the final correction at its
+last accepted step or the figures, never the writing of a results file (`_Signals`).
 """
 
 from __future__ import annotations
@@ -126,6 +127,11 @@ class Pipeline:
     def _run(self, out_dir: Path | None) -> RunResult:
         for warning in self.extras.warnings:
             log.warning("%s", warning)
+        signals = _Signals()
+        with signals.installed():
+            return self._run_frames(out_dir, signals)
+
+    def _run_frames(self, out_dir: Path | None, signals: _Signals) -> RunResult:
         interrupted = False
         stopped_by: DatasetError | None = None
         started = time.perf_counter()
@@ -133,7 +139,7 @@ class Pipeline:
         guard = OdometryGuard(self.odometry)
         front_end = FrontEnd(self.dataset, guard, self.system.view_cells, self.config.overlap_front_end)
         info = RunInfo(self.dataset_name, len(self.dataset), self.dataset.ground_truth)
-        with _stop_on_signals() as caught, self._progress_bar() as bar, front_end as front:
+        with self._progress_bar() as bar, front_end as front:
             try:
                 loops = 0
                 for i in range(len(self.dataset)):
@@ -151,7 +157,7 @@ class Pipeline:
                 interrupted = True
                 log.warning(
                     "interrupted (%s) after %d frames; writing what was processed",
-                    caught.get("signal", "SIGINT"),
+                    signals.caught or "SIGINT",
                     len(record),
                 )
             except DatasetError as err:
@@ -159,15 +165,19 @@ class Pipeline:
                 if len(record) == 0:
                     raise
                 interrupted, stopped_by = True, err
-        self.system.finish()
-        record.wall_s = time.perf_counter() - started
-        self._recorder.final_snapshot(self.system.engine)
-        interrupted_by = caught.get("signal", "SIGINT") if interrupted and stopped_by is None else None
-        result = self._finish(
-            out_dir, interrupted, None if stopped_by is None else str(stopped_by), interrupted_by
-        )
-        for observer in self.observers:
-            observer.on_finish(result)
+        with signals.shielded():
+            self.system.finish()
+            record.wall_s = time.perf_counter() - started
+            self._recorder.final_snapshot(self.system.engine)
+        result = self._finish(out_dir, interrupted, None if stopped_by is None else str(stopped_by), signals)
+        try:
+            for observer in self.observers:
+                observer.on_finish(result)
+        except KeyboardInterrupt:  # the results are written; only a viewer's last frame is lost
+            log.warning("the viewers' last frame interrupted; the results are written")
+            result.metrics["interrupted_by"] = (
+                result.metrics.get("interrupted_by") or signals.caught or "SIGINT"
+            )
         if stopped_by is not None:
             where = f"written to {out_dir}" if out_dir is not None else "returned in the exception's `result`"
             error = DatasetError(
@@ -238,30 +248,55 @@ class Pipeline:
         out_dir: str | Path | None,
         interrupted: bool,
         stopped_by: str | None,
-        interrupted_by: str | None = None,
+        signals: _Signals,
     ) -> RunResult:
-        """Correct the map, assemble the trajectories, evaluate, and write the results folder."""
-        from hippo_nav.pipeline.results import evaluate, write_results
+        """Correct the map, assemble the trajectories, evaluate, and write the results folder. A signal
+        stops the correction at its last accepted step (the map is then part-corrected, and says so);
+        while the files are written it waits (`_Signals`)."""
+        from hippo_nav.pipeline.results import ResultsNotWrittenError, evaluate, write_results
 
         clock = time.perf_counter()
-        correction = self.system.correct()
+        try:
+            correction = self.system.correct()
+        except KeyboardInterrupt:
+            correction = {
+                "method": self.config.correction.method,
+                "interrupted_by": signals.caught or "SIGINT",
+                "note": "stopped before it converged: the map is at the solver's last accepted step",
+            }
+            log.warning(
+                "final correction interrupted (%s); writing the map as it stands",
+                correction["interrupted_by"],
+            )
         correction_s = time.perf_counter() - clock
-        export = {k: np.asarray(v) for k, v in self.system.map.export().items()}
-        result = assemble_result(
-            self.dataset_name,
-            self.record,
-            export,
-            self.system.initial_heading_rad,
-            self.dataset.ground_truth(),
-            interrupted,
-        )
-        result.metrics = evaluate(result, self._facts(), correction, stopped_by)
-        result.metrics["timing"]["correction_s"] = correction_s
-        if interrupted_by is not None:
-            result.metrics["interrupted_by"] = interrupted_by
+        with signals.shielded():
+            export = {k: np.asarray(v) for k, v in self.system.map.export().items()}
+            result = assemble_result(
+                self.dataset_name,
+                self.record,
+                export,
+                self.system.initial_heading_rad,
+                self.dataset.ground_truth(),
+                interrupted,
+            )
+            result.metrics = evaluate(result, self._facts(), correction, stopped_by)
+            result.metrics["timing"]["correction_s"] = correction_s
+            if interrupted and stopped_by is None:
+                result.metrics["interrupted_by"] = signals.caught or "SIGINT"
+            elif signals.caught is not None:  # every frame, but a signal during the correction
+                result.metrics["interrupted_by"] = signals.caught
         if out_dir is not None:
             frontend = resolved_frontend_params(self.odometry, self.system.view_cells)
-            write_results(result, Path(out_dir), self.config, frontend, self.system.map)
+            try:
+                write_results(
+                    result, Path(out_dir), self.config, frontend, self.system.map, shield=signals.shielded
+                )
+            except ResultsNotWrittenError as err:
+                err.result = result  # type: ignore[attr-defined]
+                raise
+        if signals.caught is not None and not result.interrupted:
+            # Every frame was processed, but a signal came during the correction or the writing.
+            result.metrics["interrupted_by"] = signals.caught
         return result
 
     @contextlib.contextmanager
@@ -281,29 +316,58 @@ class Pipeline:
             bar.close()
 
 
-@contextlib.contextmanager
-def _stop_on_signals() -> Iterator[dict[str, str]]:
-    """SIGTERM and SIGHUP (what schedulers and `docker stop` send) stop the run like Ctrl-C: the frames
-    processed so far are still written. Yields a dict that names the signal caught. Only the main thread
-    can install handlers; elsewhere the default behaviour stays. A signal the process was started ignoring
-    stays ignored: `nohup` (SIGHUP) and a scheduler's `trap '' TERM` mean "do not stop on this"."""
-    caught: dict[str, str] = {}
+class _Signals:
+    """How the run answers Ctrl-C (SIGINT), SIGTERM and SIGHUP (what schedulers and `docker stop` send).
 
-    def stop(signum: int, _frame: object) -> None:
-        caught["signal"] = signal.Signals(signum).name
+    While frames are processed, the final correction runs (a native call that checks for signals) or
+    figures are drawn, a signal raises `KeyboardInterrupt` there: the frame loop stops after the current
+    frame, the correction stops at its last accepted step, the figures stop. While the results are written
+    (`shielded`), a signal only waits: the files are finished whole, and the run then says it was
+    interrupted. `caught` names the first signal. Only the main thread can install handlers; elsewhere
+    the default behaviour stays. A signal the process was started ignoring stays ignored: `nohup`
+    (SIGHUP) and a scheduler's `trap '' TERM` mean "do not stop on this"."""
+
+    def __init__(self) -> None:
+        self.caught: str | None = None
+        self._shielded = 0
+        self._told = False
+
+    def handle(self, signum: int, _frame: object) -> None:
+        name = signal.Signals(signum).name
+        self.caught = self.caught or name
+        if self._shielded:
+            if not self._told:
+                self._told = True
+                log.warning("%s: finishing the results files first (they are written whole)", name)
+            return
         raise KeyboardInterrupt
 
-    wanted = [s for s in (getattr(signal, "SIGTERM", None), getattr(signal, "SIGHUP", None)) if s is not None]
-    previous = {}
-    if threading.current_thread() is threading.main_thread():
-        for s in wanted:
-            if signal.getsignal(s) is not signal.SIG_IGN:
-                previous[s] = signal.signal(s, stop)
-    try:
-        yield caught
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
+    @contextlib.contextmanager
+    def shielded(self) -> Iterator[None]:
+        """Signals wait until the block is done."""
+        self._shielded += 1
+        try:
+            yield
+        finally:
+            self._shielded -= 1
+
+    @contextlib.contextmanager
+    def installed(self) -> Iterator[_Signals]:
+        wanted = [
+            s
+            for s in (signal.SIGINT, getattr(signal, "SIGTERM", None), getattr(signal, "SIGHUP", None))
+            if s is not None
+        ]
+        previous = {}
+        if threading.current_thread() is threading.main_thread():
+            for s in wanted:
+                if signal.getsignal(s) is not signal.SIG_IGN:
+                    previous[s] = signal.signal(s, self.handle)
+        try:
+            yield self
+        finally:
+            for s, handler in previous.items():
+                signal.signal(s, handler)
 
 
 def open_input(

@@ -9,8 +9,10 @@ from pathlib import Path
 
 import cv2
 import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from hippo_nav.io.atomic import write_image
 from hippo_nav.synthetic.appearance import (
     APPEARANCE_LEVELS,
     AppearanceModel,
@@ -70,9 +72,8 @@ def appearance_figure(path: str | Path, image_size_px: tuple[int, int] = (320, 9
             ax.set_title(f"{level}, pass {column}", fontsize=8, loc="left")
     out = Path(path)
     out.parent.mkdir(parents=True, exist_ok=True)
-    figure.savefig(out, dpi=100)
+    canvas = FigureCanvasAgg(figure)
+    canvas.draw()
     # Stored as an 8-bit gray PNG: a quarter of matplotlib's RGBA (the figure is gray anyway).
-    gray = cv2.imread(str(out), cv2.IMREAD_GRAYSCALE)
-    if gray is None or not cv2.imwrite(str(out), gray, [cv2.IMWRITE_PNG_COMPRESSION, 9]):
-        raise OSError(f"{out}: cannot rewrite the figure there")
-    return out
+    gray = cv2.cvtColor(np.asarray(canvas.buffer_rgba()), cv2.COLOR_RGBA2GRAY)
+    return write_image(out, gray, [cv2.IMWRITE_PNG_COMPRESSION, 9])

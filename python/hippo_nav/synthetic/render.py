@@ -19,9 +19,10 @@ from collections.abc import Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
-import cv2
 import numpy as np
 
+from hippo_nav.datasets.common import read_image_file
+from hippo_nav.io.atomic import open_atomic, write_image, write_text
 from hippo_nav.io.errors import DatasetError
 from hippo_nav.io.poses import write_kitti_poses
 from hippo_nav.synthetic.appearance import (
@@ -79,7 +80,7 @@ def _write_calibration(path: Path, p0: np.ndarray, p1: np.ndarray) -> None:
         f"{name}: " + " ".join(f"{x:.12e}" for x in p.ravel())
         for name, p in (("P0", p0), ("P1", p1), ("P2", p0), ("P3", p1))
     ]
-    path.write_text("\n".join(lines) + "\n")
+    write_text(path, "\n".join(lines) + "\n")
 
 
 def render_sequence(
@@ -155,7 +156,8 @@ def render_sequence(
     for camera in ("image_0", "image_1"):
         (sequence_dir / camera).mkdir(parents=True, exist_ok=True)
     _write_calibration(sequence_dir / "calib.txt", p0, p1)
-    np.savetxt(sequence_dir / "times.txt", timestamps_s, fmt="%.6e")
+    with open_atomic(sequence_dir / "times.txt", "wb") as f:
+        np.savetxt(f, timestamps_s, fmt="%.6e")
     write_kitti_poses(root / "poses" / f"{sequence}.txt", poses)
 
     right_from_left = np.eye(4)
@@ -184,11 +186,9 @@ def render_sequence(
             if noise_std > 0:
                 noisy = image + noise_rng.normal(0.0, noise_std, image.shape)
                 image = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
-            path = sequence_dir / camera / f"{i:06d}.png"
-            partial = path.with_name(f".{path.stem}.partial.png")
-            if not cv2.imwrite(str(partial), image):
-                raise DatasetError(f"{sequence_dir / camera}: cannot write images there")
-            partial.replace(path)  # atomic: a frame on disk is a complete frame
+            # Atomic (a fresh exclusive temporary, renamed): a frame on disk is a complete frame, and a
+            # link planted in the folder is replaced, never written through.
+            write_image(sequence_dir / camera / f"{i:06d}.png", image)
 
     bar = None
     if progress:
@@ -255,7 +255,7 @@ def render_cached(world_from_camera: np.ndarray, out_root: str | Path, sequence:
     if complete and rendered_params(root, sequence) == params and _all_readable(image_dirs):
         return root
     render_sequence(poses, root, sequence, **kw)
-    (root / "sequences" / sequence / "render.json").write_text(json.dumps(params, sort_keys=True))
+    write_text(root / "sequences" / sequence / "render.json", json.dumps(params, sort_keys=True))
     return root
 
 
@@ -264,7 +264,9 @@ def _all_readable(image_dirs: list[Path]) -> bool:
     instead of failing every later run."""
     for directory in image_dirs:
         for path in directory.glob("[0-9]*.png"):
-            if cv2.imread(str(path), cv2.IMREAD_UNCHANGED) is None:
+            try:
+                read_image_file(path)
+            except DatasetError:
                 return False
     return True
 
@@ -364,7 +366,7 @@ def render_kitti(
             "choose another --out or delete that folder"
         )
     sequence_dir.mkdir(parents=True, exist_ok=True)
-    (sequence_dir / "render.json").write_text(json.dumps(stamp, sort_keys=True))
+    write_text(sequence_dir / "render.json", json.dumps(stamp, sort_keys=True))
     return render_sequence(
         poses,
         root,

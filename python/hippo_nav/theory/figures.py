@@ -20,6 +20,7 @@ import numpy as np
 from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 
+from hippo_nav.io.atomic import atomic_path
 from hippo_nav.theory.alignment import (
     alignment_sweep,
     default_alignment_modules,
@@ -38,7 +39,8 @@ DPI = 120
 
 
 def _save(figure: Figure, path: Path) -> Path:
-    figure.savefig(path, dpi=DPI)
+    with atomic_path(path) as tmp:
+        figure.savefig(tmp, dpi=DPI)
     return path
 
 

@@ -25,11 +25,11 @@ from typing import Any, ClassVar
 import cv2
 import numpy as np
 from numpy.typing import ArrayLike
-from pydantic import BaseModel, ConfigDict
+from pydantic import ConfigDict, Field, model_validator
 
 from hippo_nav import _core
 from hippo_nav._core import HippoNavError, ViewObservation
-from hippo_nav._defaults import rust_default
+from hippo_nav._defaults import ConfigSection, rust_default
 from hippo_nav.datasets.base import StereoCalibration, StereoFrame
 
 __all__ = ["TemplateViewCells", "TemplateViewConfig", "field_of_view_rad"]
@@ -43,21 +43,56 @@ def _default(name: str) -> Any:
 # Noise floor of the patch standard deviation, in 8-bit grey levels.
 _NOISE_FLOOR_GREY = 5.0
 
+MAX_TEMPLATE_VALUES = 1 << 16
+"""Values of a template at most (`width_px · height_px`; every view cell stores one), as in the Rust cells
+(`hippo_views::MAX_TEMPLATE_VALUES`): 256 kB a cell."""
 
-class TemplateViewConfig(BaseModel):
-    """View-cell parameters (see `crates/hippo_views/src/params.rs` for their meaning and checks)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+class TemplateViewConfig(ConfigSection):
+    """View-cell parameters (see `crates/hippo_views/src/params.rs` for their meaning; the same checks are
+    made there)."""
 
-    width_px: int = _default("width_px")
-    height_px: int = _default("height_px")
-    crop_rows_frac: tuple[float, float] = (_default("crop_rows_frac")[0], _default("crop_rows_frac")[1])
-    patch_size_px: int = _default("patch_size_px")
-    max_shift_px: int = _default("max_shift_px")
-    novelty_threshold: float = _default("novelty_threshold")
-    field_of_view_rad: float = _default("field_of_view_rad")
-    min_texture: float = _default("min_texture")
-    coarse_rows: int = _default("coarse_rows")
+    model_config = ConfigDict(frozen=True)
+
+    width_px: int = Field(_default("width_px"), ge=4, le=4096, description="template columns")
+    height_px: int = Field(_default("height_px"), ge=1, le=4096, description="template rows")
+    crop_rows_frac: tuple[float, float] = Field(
+        (_default("crop_rows_frac")[0], _default("crop_rows_frac")[1]),
+        description="image rows kept (top, bottom), fractions of the height: 0 ≤ top < bottom ≤ 1",
+    )
+    patch_size_px: int = Field(
+        _default("patch_size_px"), ge=3, le=255, description="patch-normalisation side (odd)"
+    )
+    max_shift_px: int = Field(
+        _default("max_shift_px"), ge=0, le=2048, description="shift search ±columns (under half the width)"
+    )
+    novelty_threshold: float = Field(
+        _default("novelty_threshold"), gt=0.0, lt=1.0, description="difference below which a view is familiar"
+    )
+    field_of_view_rad: float = Field(_default("field_of_view_rad"), gt=0.0, lt=2 * math.pi)
+    min_texture: float = Field(_default("min_texture"), ge=0.0)
+    coarse_rows: int = Field(_default("coarse_rows"), ge=1, le=4096)
+
+    @model_validator(mode="after")
+    def _consistent(self) -> TemplateViewConfig:
+        if self.width_px * self.height_px > MAX_TEMPLATE_VALUES:
+            raise ValueError(
+                f"width_px · height_px = {self.width_px} · {self.height_px}: a template (stored for every "
+                f"view cell) may have {MAX_TEMPLATE_VALUES} values at most"
+            )
+        if 2 * self.max_shift_px >= self.width_px:
+            raise ValueError(
+                f"max_shift_px = {self.max_shift_px} must be under half the template width ({self.width_px}) "
+                "so shifted templates still overlap"
+            )
+        top, bottom = self.crop_rows_frac
+        if not (0.0 <= top < bottom <= 1.0):
+            raise ValueError(
+                f"crop_rows_frac = ({top}, {bottom}): need 0 ≤ top < bottom ≤ 1 (fractions of the image height)"
+            )
+        if self.patch_size_px % 2 == 0:
+            raise ValueError(f"patch_size_px = {self.patch_size_px} must be odd")
+        return self
 
 
 def field_of_view_rad(fx_px: float, image_width_px: int) -> float:

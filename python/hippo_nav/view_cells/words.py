@@ -38,11 +38,13 @@ from typing import Any, ClassVar
 import cv2
 import numpy as np
 from numpy.typing import ArrayLike
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 
 from hippo_nav import _core
 from hippo_nav._core import HippoNavError
+from hippo_nav._defaults import ConfigSection
 from hippo_nav.datasets.base import StereoCalibration, StereoFrame
+from hippo_nav.io.errors import read_bytes
 
 __all__ = [
     "Vocabulary",
@@ -55,22 +57,28 @@ __all__ = [
 ]
 
 
-class WordViewConfig(BaseModel):
+class WordViewConfig(ConfigSection):
     """Word view-cell parameters (the config's `view_words` section; measured choices: docs/views.md)."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(frozen=True)
 
-    max_width_px: int = Field(640, ge=64, description="images wider than this are shrunk first (area)")
+    max_width_px: int = Field(
+        640, ge=64, le=16384, description="images wider than this are shrunk first (area)"
+    )
     orb_features: int = Field(500, ge=16, le=20000, description="ORB corners per view")
     orb_levels: int = Field(4, ge=1, le=12, description="ORB pyramid levels (scale factor 1.2)")
-    min_features: int = Field(30, ge=8, description="views with fewer features are uninformative")
-    top_k: int = Field(5, ge=1, description="best-ranked older cells verified (the bag of words only ranks)")
+    min_features: int = Field(30, ge=8, le=20000, description="views with fewer features are uninformative")
+    top_k: int = Field(
+        5, ge=1, le=1000, description="best-ranked older cells verified (the bag of words only ranks)"
+    )
     ratio_test: float = Field(0.8, gt=0.0, le=1.0, description="Lowe's ratio for descriptor matches")
     ransac_px: float = Field(2.0, gt=0.0, description="epipolar RANSAC threshold (shrunk-image pixels)")
     min_inliers: int = Field(
-        40, ge=8, description="verified matches that recognise a cell of an earlier pass"
+        40, ge=8, le=20000, description="verified matches that recognise a cell of an earlier pass"
     )
-    keep_inliers: int = Field(60, ge=8, description="verified matches that keep a recent cell active")
+    keep_inliers: int = Field(
+        60, ge=8, le=20000, description="verified matches that keep a recent cell active"
+    )
     vocabulary: Path | None = Field(
         None, description="a vocabulary file (`hippo-nav vocabulary`); None: the one shipped with the package"
     )
@@ -132,7 +140,7 @@ class Vocabulary:
     def load(path: str | Path) -> Vocabulary:
         path = Path(path)
         try:
-            data = path.read_bytes()
+            data = read_bytes(path, "vocabulary")
         except OSError as err:
             raise HippoNavError(f"{path}: cannot read the vocabulary ({err.strerror})") from err
         try:
@@ -141,10 +149,10 @@ class Vocabulary:
             raise HippoNavError(f"{path}: {err}") from err
 
     def save(self, path: str | Path) -> None:
-        path = Path(path)
-        tmp = path.with_name(f".{path.name}.tmp")
-        tmp.write_bytes(self._native.to_bytes())
-        tmp.replace(path)
+        """Write the vocabulary atomically (`hippo_nav.io.atomic`)."""
+        from hippo_nav.io.atomic import write_bytes
+
+        write_bytes(path, self._native.to_bytes())
 
     def __len__(self) -> int:
         return len(self._native)

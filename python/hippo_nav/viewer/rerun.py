@@ -31,6 +31,9 @@ whose vertices a loop closure's correction moved.
 from __future__ import annotations
 
 import os
+import socket
+import sys
+import tempfile
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -53,6 +56,8 @@ from hippo_nav.viewer.panels import (
 INSTALL_HINT = "pip install 'hippo-nav[viewer]'"
 MIN_RERUN = (0, 23)  # `RecordingStream.set_time(..., sequence=)` and `rr.Scalars`
 BLOCK = 64  # points (vertices, links, track samples) per logged block
+FLUSH_TIMEOUT_S = 10.0  # at the end of a run, for a viewer that is not taking data
+VIEWER_PORT = 9876  # where `spawn` starts the viewer, or finds one already running
 JPEG_ABOVE_PX = 200_000  # camera images with more pixels are logged as JPEG (a KITTI frame: 466 000)
 
 # Colours (RGB) as in cognitive_map.png; sizes in UI points (rerun reads negative radii as screen sizes), so a
@@ -149,6 +154,24 @@ def _writable_file(path: Path) -> Path:
     return path
 
 
+def _check_viewer_can_start() -> None:
+    """`spawn` starts the Rerun Viewer (a window) unless one already listens on its port. Without a
+    display the viewer exits at once and every later flush waits for it forever: refuse before the run."""
+    from hippo_nav._core import HippoNavError
+
+    if not sys.platform.startswith("linux") or os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"):
+        return
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        probe.settimeout(0.5)
+        if probe.connect_ex(("127.0.0.1", VIEWER_PORT)) == 0:
+            return  # a viewer is already running (e.g. `rerun --serve-web`): spawn connects to it
+    raise HippoNavError(
+        "--rerun without a file shows the Rerun Viewer, and this machine has no display (DISPLAY and "
+        f"WAYLAND_DISPLAY are unset, and no viewer listens on port {VIEWER_PORT}); save a recording with "
+        "--rerun FILE.rrd and open it with `rerun FILE.rrd` where there is a display"
+    )
+
+
 def _screen(xy: np.ndarray) -> np.ndarray:
     """Map-frame (x forward, y left) → the 2-D view's coordinates (y down): (x, −y)."""
     out = np.array(xy, dtype=np.float32).reshape(-1, 2)
@@ -172,9 +195,11 @@ class RerunObserver:
         self.rr = rr if rr is not None else import_rerun()
         self.target = target
         self._save_to: Path | None = None
+        self._partial: Path | None = None
         if recording is None:
             recording = self.rr.RecordingStream(application_id)
             if target is None:
+                _check_viewer_can_start()
                 recording.spawn()
             elif str(target).startswith(("rerun://", "rerun+http://", "rerun+https://")):
                 recording.connect_grpc(str(target))
@@ -261,7 +286,7 @@ class RerunObserver:
         stage_s = result.record.stage_s
         if all(len(stage_s.get(stage, [])) == len(result.record) for stage in STAGES):
             self._log_timing(last, {stage: stage_s[stage][-1] for stage in STAGES})
-        self.rec.flush()
+        self._flush()
 
     def _at(self, record: FrameRecord) -> None:
         """Log what follows at this frame, on both timelines."""
@@ -270,16 +295,40 @@ class RerunObserver:
 
     def close(self) -> None:
         """Flush and close the recording (the .rrd file is complete after this)."""
-        self.rec.flush()
+        self._flush()
         self.rec.disconnect()
+        if self._partial is not None and self._save_to is not None:
+            os.replace(self._partial, self._save_to)
+            self._partial = None
+
+    def _flush(self) -> None:
+        """Flush, waiting at most `FLUSH_TIMEOUT_S`: a viewer that went away (or never came up) must not
+        hold a finished run forever; its results are written before this."""
+        try:
+            self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
+        except Exception as err:  # noqa: BLE001 - rerun raises its own error types; the run is done anyway
+            import logging
+
+            logging.getLogger("hippo_nav.viewer").warning(
+                "the Rerun viewer did not take the last data within %.0f s (%s); the run's results are "
+                "written, the viewer may miss its last frames",
+                FLUSH_TIMEOUT_S, err,
+            )  # fmt: skip
 
     # ----------------------------------------------------------------------------------------------
     def _start(self, event: FrameEvent) -> None:
         """Static things and the layout, once the networks' shapes are known."""
         rr = self.rr
         if self._save_to is not None:
+            # Recorded under a fresh name created exclusively beside the target (no link followed), which
+            # `close` renames to the target: a file at the target's name is always a whole recording.
             self._save_to.parent.mkdir(parents=True, exist_ok=True)
-            self.rec.save(self._save_to)
+            fd, partial = tempfile.mkstemp(
+                dir=self._save_to.parent, prefix=f".{self._save_to.name}.", suffix=".rrd"
+            )
+            os.close(fd)
+            self._partial = Path(partial)
+            self.rec.save(self._partial)
         names = [p.name for p in neural_panels(event.network, event.readout)]
         series = {
             "readout/yaw_rate_deg_s": ["odometry", "HD ring"],

@@ -19,6 +19,7 @@ Each frame is one 1280×720 canvas drawn with OpenCV (no matplotlib: it would co
 
 from __future__ import annotations
 
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -26,6 +27,7 @@ import cv2
 import numpy as np
 
 from hippo_nav.geometry import planar_xy
+from hippo_nav.io.atomic import open_atomic
 from hippo_nav.pipeline.observers import FrameEvent
 from hippo_nav.pipeline.records import RunResult
 from hippo_nav.viewer.panels import (
@@ -39,6 +41,7 @@ from hippo_nav.viewer.panels import (
 
 CANVAS_SIZE_PX = (1280, 720)  # width, height
 FOURCC = "mp4v"
+VIDEO_NAME = "mapping.mp4"  # the name OpenCV writes under, in a private folder
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 # BGR colours, as in cognitive_map.png.
 WHITE, BLACK, TEXT = (255, 255, 255), (0, 0, 0), (40, 40, 40)
@@ -63,6 +66,7 @@ class VideoObserver:
         self.fps = float(fps)
         self.frames_written = 0
         self._writer: cv2.VideoWriter | None = None
+        self._staging: tempfile.TemporaryDirectory | None = None
         self._tracks = Tracks()
         self._position = 0
         self._last: FrameEvent | None = None
@@ -88,9 +92,20 @@ class VideoObserver:
             self.close()
 
     def close(self) -> None:
-        if self._writer is not None:
-            self._writer.release()
-            self._writer = None
+        """Finish the file and put it in place (an unfinished MPEG-4 file is unplayable, so the video is
+        written in a private temporary folder and appears at `path` only whole)."""
+        if self._writer is None:
+            return
+        self._writer.release()
+        self._writer = None
+        staging, self._staging = self._staging, None
+        if staging is None:
+            return
+        try:
+            with open_atomic(self.path, "wb") as f, (Path(staging.name) / VIDEO_NAME).open("rb") as src:
+                shutil.copyfileobj(src, f)
+        finally:
+            staging.cleanup()
 
     # ----------------------------------------------------------------------------------------------
     def render(self, event: FrameEvent, result: RunResult | None = None) -> np.ndarray:
@@ -114,12 +129,19 @@ class VideoObserver:
             from hippo_nav._core import HippoNavError
 
             self.path.parent.mkdir(parents=True, exist_ok=True)
+            # OpenCV takes the name as a C string (a name that is not UTF-8 crashes it), so it writes
+            # under a plain name in a private folder; `close` moves the finished file into place.
+            staging = tempfile.TemporaryDirectory(prefix="hippo_nav_video_")
             writer = cv2.VideoWriter(
-                str(self.path), cv2.VideoWriter.fourcc(*FOURCC), self.fps, CANVAS_SIZE_PX
+                str(Path(staging.name) / VIDEO_NAME),
+                cv2.VideoWriter.fourcc(*FOURCC),
+                self.fps,
+                CANVAS_SIZE_PX,
             )
             if not writer.isOpened():
+                staging.cleanup()
                 raise HippoNavError(f"cannot write the video {self.path} (OpenCV's VideoWriter refused it)")
-            self._writer = writer
+            self._writer, self._staging = writer, staging
         self._writer.write(canvas)
         self.frames_written += 1
 

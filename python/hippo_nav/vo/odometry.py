@@ -48,9 +48,10 @@ from typing import Literal, NamedTuple
 
 import cv2
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import ConfigDict, Field
 
 from hippo_nav._core import HippoNavError, _SlidingWindow
+from hippo_nav._defaults import ConfigSection
 from hippo_nav.geometry import planar_step
 
 log = logging.getLogger("hippo_nav.vo")
@@ -60,12 +61,14 @@ STATUSES = ("first", "ok", "low_texture", "rejected")
 used); a measured step beyond the plausibility limits (prior used)."""
 
 
-class VoParams(BaseModel):
+class VoParams(ConfigSection):
     """Stereo VO parameters; pixel values refer to the input image resolution."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(frozen=True)
 
-    max_features: int = Field(1000, ge=8, description="points per frame at most (tracked + new corners)")
+    max_features: int = Field(
+        1000, ge=8, le=100_000, description="points per frame at most (tracked + new corners)"
+    )
     corner_detector: Literal["fast", "shi_tomasi"] = Field(
         "fast", description="new corners: FAST, strongest per min-distance cell; or Shi–Tomasi (slower)"
     )
@@ -85,6 +88,7 @@ class VoParams(BaseModel):
     klt_window_px: int | None = Field(
         None,
         ge=5,
+        le=255,
         description="KLT window side (odd) on the full image; None: width/25 within 11–15 px (13 at 320 px, "
         "15 on KITTI)",
     )
@@ -92,6 +96,7 @@ class VoParams(BaseModel):
     klt_coarse_window_px: int | None = Field(
         9,
         ge=5,
+        le=255,
         description="KLT window side (odd) on the pyramid levels above the image, which only bring a point "
         "within reach of the full-resolution window; None: the full-resolution window",
     )
@@ -107,9 +112,11 @@ class VoParams(BaseModel):
     min_disparity_px: float = Field(1.0, gt=0.0, description="nearer than fx·b/this: farther points dropped")
     stereo_guess_depth_m: float = Field(20.0, gt=0.0, description="depth whose disparity starts stereo KLT")
     ransac_reprojection_px: float = Field(1.0, gt=0.0, description="PnP RANSAC inlier threshold")
-    ransac_iterations: int = Field(200, ge=10)
+    ransac_iterations: int = Field(200, ge=10, le=100_000)
     ransac_confidence: float = Field(0.999, gt=0.0, lt=1.0)
-    min_inliers: int = Field(25, ge=6, description="fewer PnP inliers flag the frame (prior used)")
+    min_inliers: int = Field(
+        25, ge=6, le=100_000, description="fewer PnP inliers flag the frame (prior used)"
+    )
     min_inlier_ratio: float = Field(
         0.6, ge=0.0, le=1.0, description="below this inlier share, tracking is retried without the prior"
     )
@@ -126,7 +133,10 @@ class VoParams(BaseModel):
         "`stereo_bias_px` and the warning it raises",
     )
     stereo_bias_window: int = Field(
-        50, ge=5, description="well-tracked frames over which the stereo bias (`stereo_bias_px`) is judged"
+        50,
+        ge=5,
+        le=100_000,
+        description="well-tracked frames over which the stereo bias (`stereo_bias_px`) is judged",
     )
     stereo_bias_warn_px: float = Field(
         0.03,
@@ -139,12 +149,14 @@ class VoParams(BaseModel):
     window_keyframes: int = Field(
         8,
         ge=0,
+        le=100,
         description="keyframes refined jointly with the landmarks they share after every keyframe (a stereo "
         "bundle adjustment, the oldest fixed; docs/vo.md); 0 or 1: frame to frame only",
     )
     window_fixed_keyframes: int = Field(
         0,
         ge=0,
+        le=100,
         description="older keyframes kept beyond the window, fixed: their observations still place the "
         "landmarks the refined keyframes share with them",
     )
@@ -160,16 +172,23 @@ class VoParams(BaseModel):
         "surface is less certain than a temporal track (docs/vo.md; 1 px: t_rel 1.25 % on the 05 render, 2 px: "
         "1.03 %)",
     )
-    window_iterations: int = Field(6, ge=1, description="Levenberg–Marquardt iterations of each round")
+    window_iterations: int = Field(
+        6, ge=1, le=100, description="Levenberg–Marquardt iterations of each round"
+    )
     window_min_shared: int = Field(
-        20, ge=1, description="a keyframe sharing fewer landmarks with the window starts a new window"
+        20,
+        ge=1,
+        le=100_000,
+        description="a keyframe sharing fewer landmarks with the window starts a new window",
     )
     track_window_points: bool = Field(
         True,
         description="track each point into the next frame from its refined landmark (else from this frame's "
         "stereo depth alone)",
     )
-    seed: int = Field(0, description="seeds OpenCV's RNG (RANSAC) on reset, so runs are repeatable")
+    seed: int = Field(
+        0, ge=0, le=2**31 - 1, description="seeds OpenCV's RNG (RANSAC) on reset, so runs are repeatable"
+    )
     default_dt_s: float = Field(0.1, gt=0.0, description="frame interval used when timestamps do not advance")
     max_prior_gap_s: float = Field(
         1.0,

@@ -1,0 +1,148 @@
+"""Writing files so that none is ever half-written, written through a link, or lost to a full disk.
+
+Every file a run or `render` writes goes through here. The content goes to a fresh temporary file in the
+target's folder, created exclusively (`O_EXCL` never opens an existing name, so a link planted under a
+predictable name is not followed), is closed, and is then renamed over the target (a rename replaces a
+link at the target itself, never the file it points to). A reader sees the old file or the whole new
+one, never a truncated one, whenever the process stops. (No fsync: it guards against a power cut, not a
+stopped process, and would cost a render of thousands of images seconds per thousand.) A failure (a read-only or full disk, a folder removed) removes the
+temporary file and raises `WriteError`, which names the file and the reason.
+
+OpenCV takes file names as C strings and crashes on a name that is not valid UTF-8 (a byte-named folder
+on Linux), so images are encoded in memory (`write_image`) and written here (the loaders decode the bytes
+they read: `hippo_nav.datasets.common.read_image_file`).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import os
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+from typing import IO
+
+import cv2
+import numpy as np
+
+from hippo_nav._core import HippoNavError
+
+__all__ = [
+    "WriteError",
+    "atomic_path",
+    "open_atomic",
+    "write_bytes",
+    "write_image",
+    "write_text",
+]
+
+
+class WriteError(HippoNavError):
+    """A file could not be written; `path` is the file, `reason` the operating system's words."""
+
+    def __init__(self, path: Path, reason: str) -> None:
+        self.path = Path(path)
+        self.reason = reason
+        super().__init__(f"cannot write {path}: {reason}")
+
+
+def _reason(err: OSError) -> str:
+    if err.errno == errno.ENOSPC:
+        return "the disk is full"
+    if err.errno == errno.EROFS:
+        return "the file system is read-only"
+    if err.errno in (errno.EACCES, errno.EPERM):
+        return "permission denied"
+    if err.errno == errno.EDQUOT:
+        return "the disk quota is exceeded"
+    return err.strerror or str(err)
+
+
+def _temporary(path: Path, suffix: str) -> tuple[int, Path]:
+    try:
+        fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=suffix)
+    except OSError as err:
+        raise WriteError(path, _reason(err)) from None
+    return fd, Path(name)
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """A fresh temporary path next to `path` (same suffix, so writers that choose the format by it still
+    do), for writers that want a path (matplotlib); renamed over `path` when the block ends without an
+    error, removed otherwise. The temporary file exists (empty, created exclusively) when the block starts."""
+    path = Path(path)
+    fd, tmp = _temporary(path, path.suffix)
+    os.close(fd)
+    try:
+        try:
+            yield tmp
+        except OSError as err:
+            raise WriteError(path, _reason(err)) from None
+        if tmp.stat().st_size == 0:
+            raise WriteError(path, "nothing was written (the writer failed silently)")
+        _replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+@contextlib.contextmanager
+def open_atomic(path: str | Path, mode: str = "w", newline: str | None = None) -> Iterator[IO]:
+    """`open(path, mode)` for writing, atomically (module doc): `mode` is "w" (UTF-8 text) or "wb"."""
+    if mode not in ("w", "wb"):
+        raise ValueError(f"open_atomic writes only ('w' or 'wb'), not {mode!r}")
+    path = Path(path)
+    fd, tmp = _temporary(path, ".tmp")
+    try:
+        if mode == "w":
+            f: IO = os.fdopen(fd, "w", encoding="utf-8", newline=newline)
+        else:
+            f = os.fdopen(fd, "wb")
+    except BaseException:
+        os.close(fd)
+        tmp.unlink(missing_ok=True)
+        raise
+    try:
+        try:
+            with f:
+                yield f
+        except OSError as err:  # a write or the close (where some file systems report a full disk)
+            raise WriteError(path, _reason(err)) from None
+        _replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+
+
+def write_bytes(path: str | Path, data: bytes) -> Path:
+    """Write `data` to `path` atomically; returns the path."""
+    with open_atomic(path, "wb") as f:
+        f.write(data)
+    return Path(path)
+
+
+def write_text(path: str | Path, text: str) -> Path:
+    """Write `text` (UTF-8) to `path` atomically; returns the path."""
+    with open_atomic(path, "w") as f:
+        f.write(text)
+    return Path(path)
+
+
+def write_image(path: str | Path, image: np.ndarray, params: list[int] | None = None) -> Path:
+    """Encode `image` in the format of `path`'s suffix (OpenCV, in memory) and write it atomically."""
+    path = Path(path)
+    ok, encoded = cv2.imencode(path.suffix or ".png", image, params or [])
+    if not ok:
+        raise WriteError(
+            path, f"OpenCV could not encode a {image.shape} {image.dtype} image as {path.suffix}"
+        )
+    return write_bytes(path, encoded.tobytes())
+
+
+def _replace(tmp: Path, path: Path) -> None:
+    try:
+        os.replace(tmp, path)
+    except OSError as err:
+        raise WriteError(path, _reason(err)) from None
