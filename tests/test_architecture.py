@@ -17,7 +17,8 @@ LAYERS = [
     {"datasets", "engine", "map", "metrics", "theory"},
     {"vo", "view_cells", "closure", "synthetic"},
     {"pipeline"},
-    {"viewer"},
+    {"viewer", "sweep"},
+    {"report"},
     {"cli", "__init__"},
 ]
 """docs/architecture.md, "Layers and the import rule": lowest first."""

@@ -1,7 +1,8 @@
 """Command line: `hippo-nav run` (the main job: the SLAM pipeline), `hippo-nav render` (a synthetic stereo
 street along a KITTI ground truth), `hippo-nav figures` (the paper's theory figures, or with --appearance
-the synthetic street at each appearance level) and `hippo-nav vocabulary` (the word view cells' vocabulary,
-trained on a folder of images or remade from the renders).
+the synthetic street at each appearance level), `hippo-nav vocabulary` (the word view cells' vocabulary,
+trained on a folder of images or remade from the renders), `hippo-nav sweep` (many runs over a cross-product
+of settings, on Ray) and `hippo-nav report` (one table and figures over sweeps and runs).
 
 Exit codes: 0 done; 2 bad input (one line on stderr saying what to fix; nothing is processed) or a frame
 that cannot be read mid-run (the results of the frames before it are written); 130 interrupted by Ctrl-C,
@@ -68,6 +69,8 @@ def build_parser() -> argparse.ArgumentParser:
     _add_render(sub)
     _add_figures(sub)
     _add_vocabulary(sub)
+    _add_sweep(sub)
+    _add_report(sub)
     return parser
 
 
@@ -281,6 +284,136 @@ def _add_vocabulary(sub: argparse._SubParsersAction) -> None:
     vocabulary.add_argument("--branching", type=int, default=10, help="children per node of the word tree")
     vocabulary.add_argument("--levels", type=int, default=4, help="depth of the word tree")
     vocabulary.add_argument("--seed", type=int, default=0, help="seed of the k-means clustering")
+
+
+def _add_sweep(sub: argparse._SubParsersAction) -> None:
+    """`hippo-nav sweep`: the space (a file and/or axes), `run`'s dataset flags, and how the runs execute."""
+    from hippo_nav.datasets import LOADERS
+    from hippo_nav.vo.replay import ALIGNMENTS, FORMATS
+
+    sweep = sub.add_parser(
+        "sweep",
+        help="run the pipeline over a cross-product of settings × seeds × sequences × odometries, on Ray",
+        description="Runs `hippo-nav run` for every combination of the axes (from the command line and/or a "
+        "TOML/YAML sweep file, docs/sweep.md) on Ray: on this machine by default, or on a cluster with "
+        "--address. Each run writes its results folder and manifest.json into OUT/runs/<id>/. Rerunning the "
+        "same command skips finished runs and reruns interrupted ones; a failing run is listed and never "
+        "stops the others; Ctrl-C stops cleanly. Exit 0: every run done; 1: some failed; 130: interrupted. "
+        "Needs pip install 'hippo-nav[sweep]'.",
+        formatter_class=_HelpFormatter,
+    )
+    sweep.set_defaults(dataset=None, dataset_flags=[])
+    space = sweep.add_argument_group("the space (the command line replaces a file's axis of the same name)")
+    space.add_argument(
+        "file", nargs="?", metavar="SWEEP_FILE", help="sweep file (.toml, .yaml) (default: none)"
+    )
+    space.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=V1,V2",
+        help="a config key and its values (JSON where they parse: true, 0.4, [0,10]), e.g. "
+        "views.novelty_threshold=0.40,0.45 or lesions.dorsal=true,false (repeatable)",
+    )
+    space.add_argument("--seeds", metavar="0-4", help="seeds: 0-4, 0,3,7 (default: the config's seed)")
+    space.add_argument(
+        "--lesion",
+        metavar="COND,…",
+        help="lesion conditions: none, ventral, intermediate, dorsal, a+b (default: none)",
+    )
+    space.add_argument(
+        "--sequence", metavar="SEQ,…", help="sequences of --dataset, e.g. 00,05 (default: its default)"
+    )
+    space.add_argument(
+        "--odometry", metavar="vo,drift,FILE", help="odometries: vo (built-in), drift (the ground truth drifted "
+        "1 %%), a trajectory file replayed as with run --odometry (default: vo)",
+    )  # fmt: skip
+    space.add_argument(
+        "--odometry-format",
+        choices=list(FORMATS),
+        default=None,
+        help="format of the files (default: guessed)",
+    )
+    space.add_argument(
+        "--odometry-align",
+        choices=list(ALIGNMENTS),
+        default=None,
+        help="alignment of KITTI files (default: exact)",
+    )
+    data = sweep.add_argument_group("input (as in run)")
+    data.add_argument("--dataset", "--kitti", metavar="PATH", action=_DatasetPath,
+                      help="the stereo dataset (default: none, the built-in demo loop)")  # fmt: skip
+    data.add_argument(
+        "--dataset-kind", choices=list(LOADERS), default=None, help="the dataset's kind (default: detected)"
+    )
+    data.add_argument("--start", type=int, default=None, help="first frame (default: the sequence's first)")
+    data.add_argument("--stop", type=int, default=None, help="frame to stop before (default: the end)")
+    data.add_argument("--stride", type=int, default=None, help="use every n-th frame (default: 1)")
+    for flag, key in LOADER_FLAGS.items():
+        data.add_argument(
+            flag, metavar=key.upper(), help=f"{'/'.join(_loaders_taking(key))}: as in run (default: none)"
+        )
+    setup = sweep.add_argument_group("configuration")
+    setup.add_argument(
+        "--config", metavar="JSON", help="base config file every run starts from (default: none)"
+    )
+    setup.add_argument("--no-figures", action="store_true", help="skip every run's figures")
+    execution = sweep.add_argument_group("execution")
+    execution.add_argument(
+        "--address", metavar="auto|HOST:PORT", default=None,
+        help="join a running Ray cluster (`ray start --head`; docs/sweep.md) (default: none, Ray on this machine)",
+    )  # fmt: skip
+    execution.add_argument(
+        "--cpus-per-run", type=int, default=1, metavar="N",
+        help="CPUs each run is declared to Ray, and the size of its thread pools (a demo run keeps about one "
+        "core busy: 0.95-1.06 cores measured)",
+    )  # fmt: skip
+    execution.add_argument(
+        "--workers", type=int, default=None, metavar="N",
+        help="without --address: runs at a time on this machine (default: its cores / --cpus-per-run)",
+    )  # fmt: skip
+    execution.add_argument("--retries", type=int, default=2, help="restarts of a run whose worker died")
+    execution.add_argument(
+        "--retry-failed", action="store_true", help="run the runs that failed before again"
+    )
+    execution.add_argument(
+        "--dry-run", action="store_true", help="list the runs and what would be done; run nothing"
+    )
+    execution.add_argument("--no-progress", action="store_true", help="no progress bar")
+    sweep.add_argument(
+        "--out", default=None, help="sweep folder (default: runs/<sweep file name>, or runs/sweep)"
+    )
+
+
+def _add_report(sub: argparse._SubParsersAction) -> None:
+    report = sub.add_parser(
+        "report",
+        help="one table (CSV, Markdown), statistics over seeds and figures from sweep and run folders",
+        description="Reads sweep folders (OUT/runs/*/manifest.json) and plain `hippo-nav run` folders (any "
+        "folder holding metrics.json, searched below each DIR) and writes into --out: table.csv and table.md "
+        "(one row per run: what it varies, its metrics and timings), groups.csv and the grouped statistics "
+        "over seeds in table.md (mean, std, n, 95 %% confidence interval), figures (ATE per configuration with "
+        "the seeds as points, the trajectories of one sequence overlaid, a metric against one swept key) and, "
+        "when the runs differ in lesions, lesions.md (place-bump width and path-integration error per lesion "
+        "against the 1-D theory's order).",
+        formatter_class=_HelpFormatter,
+    )
+    report.add_argument("dirs", nargs="+", metavar="DIR", help="sweep or run folders")
+    report.add_argument(
+        "--out", default=None, help="report folder (default: DIR/report for one DIR, else runs/report)"
+    )
+    report.add_argument(
+        "--metric", default="ate_2d_corrected_m", help="the metric of the figures (a column of table.csv)"
+    )
+    report.add_argument(
+        "--key",
+        default=None,
+        help="the swept key of the response figure (default: the first with several values)",
+    )
+    report.add_argument(
+        "--sequence", default=None, help="the sequence whose trajectories are overlaid (default: the first)"
+    )
+    report.add_argument("--no-figures", action="store_true", help="tables only")
 
 
 MAX_SEED = 2**31 - 1
@@ -517,6 +650,47 @@ def _read_gray(path: Path) -> Any:
     return read_image_file(path, cv2.IMREAD_GRAYSCALE)
 
 
+def _sweep(args: argparse.Namespace) -> int:
+    from hippo_nav.sweep import SweepOptions, build_space, run_sweep
+    from hippo_nav.sweep.scheduler import describe, dry_run
+
+    if len(args.dataset_flags) > 1:
+        from hippo_nav._core import HippoNavError
+
+        raise HippoNavError(f"give one dataset path: {' and '.join(args.dataset_flags)} name the same option")
+    flags = {"dataset": args.dataset, "dataset_kind": args.dataset_kind, "start": args.start, "stop": args.stop,
+             "stride": args.stride, **{key: getattr(args, key) for key in LOADER_FLAGS.values()}}  # fmt: skip
+    space = build_space(
+        args.file, sets=args.set, seeds=args.seeds, lesions=args.lesion, sequences=args.sequence,
+        odometries=args.odometry, odometry_format=args.odometry_format, odometry_align=args.odometry_align,
+        config=args.config, dataset=flags, no_figures=args.no_figures,
+    )  # fmt: skip
+    out = args.out or space.out or (f"runs/{Path(args.file).stem}" if args.file else "runs/sweep")
+    if args.dry_run:
+        print("\n".join(dry_run(space, out, args.retry_failed)))
+        return 0
+    options = SweepOptions(
+        address=args.address, cpus_per_run=args.cpus_per_run, workers=args.workers, retries=args.retries,
+        retry_failed=args.retry_failed, progress=not args.no_progress,
+    )  # fmt: skip
+    summary = run_sweep(space, out, options)
+    print(describe(summary))
+    if summary.interrupted:
+        return 130
+    return 1 if summary.failed else 0
+
+
+def _report(args: argparse.Namespace) -> int:
+    from hippo_nav.report import write_report
+
+    out = args.out or (str(Path(args.dirs[0]) / "report") if len(args.dirs) == 1 else "runs/report")
+    written = write_report(
+        args.dirs, out, metric=args.metric, key=args.key, sequence=args.sequence, figures=not args.no_figures
+    )
+    print(f"{written.runs} runs; wrote {', '.join(p.name for p in written.files)} into {out}")
+    return 0
+
+
 def _summary(metrics: dict) -> dict:
     """The headline numbers of a run (metrics.json holds everything)."""
     keys = ["sequence", "note", "frames", "view_cells", "vertices", "loop_closures", "interrupted"]
@@ -546,6 +720,10 @@ def main(argv: list[str] | None = None) -> int:
             return _render(args)
         if args.command == "vocabulary":
             return _vocabulary(args)
+        if args.command == "sweep":
+            return _sweep(args)
+        if args.command == "report":
+            return _report(args)
         if args.command == "figures":
             if args.appearance:
                 from hippo_nav.synthetic.figures import appearance_figure

@@ -1,0 +1,566 @@
+"""The space of a sweep: axes given on the command line or in a sweep file, expanded into runs with stable ids.
+
+Axes (each a list of values; a run takes one value of every axis, the runs are their cross-product):
+- `set`: config overrides, `key = [v1, v2]` with `key` a dotted path into the config (`views.novelty_threshold`,
+  `lesions.dorsal`); `--set key=v1,v2` on the command line, every value parsed as JSON where it is JSON
+  (`true`, `0.4`, `null`, `[0, 10]`) and kept as text otherwise (`RatSlam`). A single value sets every run.
+- `seeds`: the config's `seed`, `0-4`, `0,3,7` or a list.
+- `lesion`: lesion conditions, each `none` or module names joined by `+` (`ventral+dorsal`), applied as
+  `hippo-nav run --lesion` is (`PipelineConfig.with_lesions`, added to the config's `lesions` section).
+- `sequence`: sequences of the dataset (as `run --sequence`).
+- `odometry`: `vo` (the built-in stereo VO), `drift` (the run's ground truth made to drift like a real
+  odometry, `hippo_nav.synthetic.drifting_odometry`, replayed) or a trajectory file replayed as with
+  `run --odometry FILE` (in a sweep file a table `{file = "…", align = "start", format = "kitti"}`).
+
+A sweep file (TOML or YAML) holds the dataset flags of `run` (`dataset`, `dataset_kind`, `start`, `stop`,
+`stride`, loader options), a base config (`config_file = "base.json"` and/or a `[config]` table of sections,
+which wins), the
+default results folder (`out`), and the axes: at the top level for one cross-product, or in `[[space]]`
+tables for a union of cross-products (axes left out of a table take the top-level ones). Relative paths are
+taken from the current folder and written into the manifests as absolute paths.
+
+A run's id is a readable slug of its axis values and 8 hex digits of the SHA-256 of everything that makes the
+run (dataset, range, sequence, odometry, lesion, seed, overrides), so the same space always gives the same ids
+and a rerun finds its earlier runs (resume); two runs differing in any value never share an id.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import itertools
+import json
+import os
+import re
+import sys
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from hippo_nav._core import HippoNavError
+from hippo_nav.io import read_text
+from hippo_nav.pipeline.config import PipelineConfig, config_from_dict, load_config, resolved_config_dict
+
+MAX_SEED = 2**31 - 1
+LESION_MODULES = ("ventral", "intermediate", "dorsal")
+AXES = ("set", "seeds", "lesion", "sequence", "odometry")
+"""The axes a sweep file or the command line may give."""
+DATASET_KEYS = ("dataset", "dataset_kind", "start", "stop", "stride", "left_topic", "right_topic", "topics")
+FILE_KEYS = {*AXES, *DATASET_KEYS, "config", "config_file", "out", "space"}
+SLUG_MAX_CHARS = 72
+_KEY = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*$")
+
+
+@dataclass(frozen=True)
+class Odometry:
+    """One value of the odometry axis: `vo`, `drift`, or a trajectory `file` (absolute) replayed."""
+
+    kind: str  # "vo", "drift" or "file"
+    file: str | None = None
+    file_format: str | None = None
+    align: str | None = None
+
+    @property
+    def label(self) -> str:
+        if self.kind != "file":
+            return self.kind
+        assert self.file is not None
+        return Path(self.file).stem + (f"@{self.align}" if self.align else "")
+
+    def as_dict(self) -> dict[str, Any]:
+        if self.kind != "file":
+            return {"kind": self.kind}
+        return {"kind": "file", "file": self.file, "format": self.file_format, "align": self.align}
+
+
+@dataclass(frozen=True)
+class DatasetInput:
+    """The dataset flags every run of a sweep shares (`run`'s; `path` None: the built-in demo loop)."""
+
+    path: str | None = None
+    kind: str | None = None
+    start: int | None = None
+    stop: int | None = None
+    stride: int = 1
+    options: tuple[tuple[str, str], ...] = ()
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "path": self.path, "kind": self.kind, "start": self.start, "stop": self.stop,
+            "stride": self.stride, "options": dict(self.options),
+        }  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Block:
+    """One cross-product: every combination of its axes' values."""
+
+    overrides: dict[str, list[Any]] = field(default_factory=dict)
+    seeds: list[int] | None = None
+    lesions: list[str] = field(default_factory=lambda: ["none"])
+    sequences: list[str | None] = field(default_factory=lambda: [None])
+    odometries: list[Odometry] = field(default_factory=lambda: [Odometry("vo")])
+
+    def size(self) -> int:
+        n = len(self.seeds or [None]) * len(self.lesions) * len(self.sequences) * len(self.odometries)
+        for values in self.overrides.values():
+            n *= len(values)
+        return n
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One run of a sweep: its id, what it varies, and its validated config (as the dict it came from)."""
+
+    run_id: str
+    dataset: DatasetInput
+    sequence: str | None
+    odometry: Odometry
+    lesion: str
+    seed: int | None
+    overrides: dict[str, Any]
+    config: dict[str, Any]  # the base config with the overrides, lesions and seed applied (validated)
+
+    def axes(self) -> dict[str, Any]:
+        """What this run varies, flat: the columns of a report."""
+        out: dict[str, Any] = {
+            "sequence": self.sequence,
+            "odometry": self.odometry.label,
+            "lesion": self.lesion,
+        }
+        out.update(self.overrides)
+        out["seed"] = self.seed
+        return out
+
+    def pipeline_config(self) -> PipelineConfig:
+        config = config_from_dict(self.config, f"run {self.run_id}")
+        return config.with_lesions(*lesion_modules(self.lesion))
+
+
+@dataclass
+class SweepSpace:
+    """The whole space: the shared dataset flags and base config, and one or more cross-products."""
+
+    dataset: DatasetInput = field(default_factory=DatasetInput)
+    base_config: dict[str, Any] = field(default_factory=dict)
+    base_config_file: str | None = None
+    blocks: list[Block] = field(default_factory=lambda: [Block()])
+    out: str | None = None
+
+    def runs(self) -> list[RunSpec]:
+        """Every run, in the order of the blocks and their axes, duplicates (same id) once; every config
+        is validated here, before anything runs."""
+        runs: dict[str, RunSpec] = {}
+        for block in self.blocks:
+            for spec in _expand(block, self.dataset, self.base_config):
+                runs.setdefault(spec.run_id, spec)
+        return list(runs.values())
+
+    def as_dict(self) -> dict[str, Any]:
+        return {
+            "dataset": self.dataset.as_dict(),
+            "base_config_file": self.base_config_file,
+            "base_config": self.base_config,
+            "blocks": [
+                {
+                    "set": block.overrides,
+                    "seeds": block.seeds,
+                    "lesion": block.lesions,
+                    "sequence": block.sequences,
+                    "odometry": [o.as_dict() for o in block.odometries],
+                }
+                for block in self.blocks
+            ],
+        }
+
+
+# ------------------------------------------------------------------------------------------------
+# Parsing values
+
+
+def split_values(text: str) -> list[str]:
+    """`a,b,[1,2],"x,y"` → `['a', 'b', '[1,2]', '"x,y"']`: commas inside brackets, braces or quotes stay."""
+    parts: list[str] = []
+    current: list[str] = []
+    depth, quote = 0, ""
+    for char in text:
+        if quote:
+            quote = "" if char == quote else quote
+        elif char in "\"'":
+            quote = char
+        elif char in "[{":
+            depth += 1
+        elif char in "]}":
+            depth -= 1
+        elif char == "," and depth == 0:
+            parts.append("".join(current).strip())
+            current = []
+            continue
+        current.append(char)
+    parts.append("".join(current).strip())
+    return parts
+
+
+def parse_value(text: str) -> Any:
+    """A command-line value: JSON where it parses (`true`, `0.4`, `null`, `[0, 10]`, `"x"`), else the text."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        return text
+
+
+def parse_set(text: str) -> tuple[str, list[Any]]:
+    """`--set key=v1,v2` → (key, [v1, v2])."""
+    key, sep, values = text.partition("=")
+    key = key.strip()
+    if not sep or not values.strip():
+        raise HippoNavError(
+            f"--set {text}: give KEY=VALUE[,VALUE…], e.g. --set views.novelty_threshold=0.4,0.45"
+        )
+    return _checked_key(key, f"--set {text}"), [parse_value(v) for v in split_values(values)]
+
+
+def parse_seeds(spec: str | int | Sequence[Any]) -> list[int]:
+    """`0-4`, `0,3,7`, `0-2,10`, an integer, or a list of integers → the seeds, in order, each once."""
+    if isinstance(spec, bool):
+        raise HippoNavError(f"seeds {spec!r}: give integers, e.g. 0-4 or 0,3,7")
+    items: list[Any] = [spec] if isinstance(spec, int) else list(spec) if not isinstance(spec, str) else []
+    if isinstance(spec, str):
+        for part in (p.strip() for p in spec.split(",")):
+            lo, dash, hi = part.partition("-")
+            try:
+                items += list(range(int(lo), int(hi) + 1)) if dash else [int(part)]
+            except ValueError:
+                raise HippoNavError(f"--seeds {spec}: give integers or ranges, e.g. 0-4 or 0,3,7") from None
+    seeds: list[int] = []
+    for seed in items:
+        if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
+            raise HippoNavError(f"seed {seed!r}: give integers from 0 to {MAX_SEED}")
+        if seed not in seeds:
+            seeds.append(seed)
+    if not seeds:
+        raise HippoNavError(f"seeds {spec!r}: no seed given (e.g. 0-4)")
+    return seeds
+
+
+def lesion_modules(condition: str) -> list[str]:
+    """`none` → []; `ventral+dorsal` → ["ventral", "dorsal"] (checked)."""
+    if condition == "none":
+        return []
+    names = [n.strip() for n in condition.split("+")]
+    unknown = [n for n in names if n not in LESION_MODULES]
+    if unknown or not names:
+        raise HippoNavError(
+            f"lesion {condition!r}: give none or module names joined by +, from {', '.join(LESION_MODULES)}"
+        )
+    return names
+
+
+def _checked_lesion(condition: Any) -> str:
+    if not isinstance(condition, str):
+        raise HippoNavError(f"lesion {condition!r}: give a name (none, ventral, intermediate, dorsal, a+b)")
+    modules = lesion_modules(condition.strip())
+    # One spelling per condition, so `dorsal+ventral` and `ventral+dorsal` are the same run.
+    return "+".join(m for m in LESION_MODULES if m in modules) or "none"
+
+
+def parse_odometry(value: Any, file_format: str | None = None, align: str | None = None) -> Odometry:
+    """`vo`, `drift`, a path, or (in a file) `{file, format, align}`; a path must exist."""
+    from hippo_nav.vo.replay import ALIGNMENTS, FORMATS
+
+    if isinstance(value, dict):
+        unknown = set(value) - {"file", "format", "align"}
+        if unknown or "file" not in value:
+            raise HippoNavError(f"odometry {value}: a table takes file (required), format and align")
+        file_format, align, value = value.get("format", file_format), value.get("align", align), value["file"]
+    if not isinstance(value, str) or not value.strip():
+        raise HippoNavError(f"odometry {value!r}: give vo, drift or a trajectory file")
+    if value in ("vo", "drift"):
+        return Odometry(value)
+    if file_format is not None and file_format not in FORMATS:
+        raise HippoNavError(f"odometry {value}: format {file_format!r}; choose from {', '.join(FORMATS)}")
+    if align is not None and align not in ALIGNMENTS:
+        raise HippoNavError(f"odometry {value}: align {align!r}; choose from {', '.join(ALIGNMENTS)}")
+    path = Path(os.path.expandvars(value)).expanduser()
+    if not path.is_file():
+        raise HippoNavError(f"odometry {value}: no such file (give vo, drift or a trajectory file)")
+    return Odometry("file", str(path.resolve()), file_format, align)
+
+
+def _checked_key(key: str, where: str) -> str:
+    if not _KEY.match(key):
+        raise HippoNavError(f"{where}: {key!r} is not a dotted config key such as views.novelty_threshold")
+    if key == "seed":
+        raise HippoNavError(
+            f"{where}: the seed is its own axis; give --seeds 0-4 (or seeds = [...] in a file)"
+        )
+    if key.startswith("engine.lesioned"):
+        raise HippoNavError(f"{where}: set lesions with lesions.NAME or the lesion axis, not engine.lesioned")
+    return key
+
+
+# ------------------------------------------------------------------------------------------------
+# Expansion
+
+
+def apply_override(config: dict[str, Any], key: str, value: Any) -> None:
+    """`config["a"]["b"] = value` for `key = "a.b"`, creating the sections on the way."""
+    *sections, last = key.split(".")
+    node = config
+    for i, name in enumerate(sections):
+        child = node.setdefault(name, {})
+        if not isinstance(child, dict):
+            raise HippoNavError(
+                f"--set {key}: {'.'.join(sections[: i + 1])} is a value, not a config section"
+            )
+        node = child
+    node[last] = value
+
+
+def _slug_value(value: Any) -> str:
+    text = value if isinstance(value, str) else json.dumps(value, separators=(",", ""))
+    return re.sub(r"[^A-Za-z0-9.+-]+", "", text.replace(",", "+").replace(" ", ""))[:24] or "x"
+
+
+def run_id(facts: dict[str, Any]) -> str:
+    """Readable slug of the axis values + 8 hex digits of the SHA-256 of every fact of the run."""
+    parts = []
+    if facts["sequence"] is not None:
+        parts.append(f"seq{_slug_value(facts['sequence'])}")
+    parts.append(_slug_value(facts["odometry"]["kind"] if facts["odometry"]["kind"] != "file" else
+                             Path(facts["odometry"]["file"]).stem))  # fmt: skip
+    if facts["lesion"] != "none":
+        parts.append(f"no-{facts['lesion']}")
+    for key, value in facts["overrides"].items():
+        parts.append(f"{key.rsplit('.', 1)[-1]}={_slug_value(value)}")
+    if facts["seed"] is not None:
+        parts.append(f"s{facts['seed']}")
+    slug = "_".join(parts)[:SLUG_MAX_CHARS].strip("_.")
+    digest = hashlib.sha256(json.dumps(facts, sort_keys=True, default=str).encode()).hexdigest()[:8]
+    return f"{slug}-{digest}"
+
+
+def _expand(block: Block, dataset: DatasetInput, base: dict[str, Any]) -> Iterable[RunSpec]:
+    keys = sorted(block.overrides)
+    seeds: list[int | None] = list(block.seeds) if block.seeds else [None]
+    for values in itertools.product(
+        block.sequences, block.odometries, block.lesions, *(block.overrides[k] for k in keys),
+        seeds,
+    ):  # fmt: skip
+        sequence, odometry, lesion, *chosen, seed = values
+        overrides = dict(zip(keys, chosen, strict=True))
+        config = copy.deepcopy(base)
+        for key, value in overrides.items():
+            apply_override(config, key, value)
+        if seed is not None:
+            config["seed"] = seed
+        facts = {
+            "dataset": dataset.as_dict(), "sequence": sequence, "odometry": odometry.as_dict(),
+            "lesion": lesion, "seed": seed, "overrides": overrides,
+        }  # fmt: skip
+        spec = RunSpec(run_id(facts), dataset, sequence, odometry, lesion, seed, overrides, config)
+        described = ", ".join(f"{k}={json.dumps(v)}" for k, v in overrides.items()) or "the base config"
+        config_from_dict(config, f"run {spec.run_id} ({described})")  # the errors of --config, before any run
+        yield spec
+
+
+def config_hash(config: PipelineConfig) -> str:
+    """SHA-256 of the fully resolved config (every default filled in): equal hashes, equal settings."""
+    text = json.dumps(resolved_config_dict(config), sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+# ------------------------------------------------------------------------------------------------
+# Building a space from the command line and a sweep file
+
+
+def read_sweep_file(path: str | Path) -> dict[str, Any]:
+    """A sweep file's table: TOML (`.toml`) or YAML (`.yaml`, `.yml`)."""
+    path = Path(path)
+    try:
+        text = read_text(path, "sweep file")
+    except OSError as err:
+        raise HippoNavError(f"{path}: cannot read the sweep file ({err.strerror})") from None
+    if path.suffix == ".toml":
+        if sys.version_info >= (3, 11):
+            import tomllib
+        else:  # the sweep extra installs tomli on Python 3.10
+            import tomli as tomllib
+        try:
+            data = tomllib.loads(text)
+        except tomllib.TOMLDecodeError as err:
+            raise HippoNavError(f"{path}: not valid TOML ({err})") from None
+    elif path.suffix in (".yaml", ".yml"):
+        import yaml
+
+        try:
+            data = yaml.safe_load(text)
+        except yaml.YAMLError as err:
+            raise HippoNavError(f"{path}: not valid YAML ({str(err).splitlines()[0]})") from None
+    else:
+        raise HippoNavError(f"{path}: a sweep file ends in .toml, .yaml or .yml")
+    if not isinstance(data, dict):
+        raise HippoNavError(f"{path}: a sweep file holds one table of keys ({', '.join(sorted(FILE_KEYS))})")
+    unknown = sorted(set(data) - FILE_KEYS)
+    if unknown:
+        raise HippoNavError(
+            f"{path}: unknown keys {unknown}; a sweep file takes {', '.join(sorted(FILE_KEYS))}"
+        )
+    return data
+
+
+def _as_list(value: Any) -> list[Any]:
+    return list(value) if isinstance(value, list) else [value]
+
+
+def _block_from(table: dict[str, Any], where: str, defaults: Block, odometry_flags: dict[str, Any]) -> Block:
+    unknown = sorted(set(table) - set(AXES))
+    if unknown:
+        raise HippoNavError(f"{where}: unknown axes {unknown}; choose from {', '.join(AXES)}")
+    overrides = dict(defaults.overrides)
+    if "set" in table:
+        if not isinstance(table["set"], dict):
+            raise HippoNavError(f'{where}: set is a table of "key" = [values]')
+        for key, values in _flat(table["set"]).items():
+            overrides[_checked_key(key, f"{where}, set")] = _as_list(values)
+    seeds = parse_seeds(table["seeds"]) if "seeds" in table else defaults.seeds
+    lesions = (
+        [_checked_lesion(v) for v in _as_list(table["lesion"])] if "lesion" in table else defaults.lesions
+    )
+    sequences: list[str | None] = (
+        [str(v) for v in _as_list(table["sequence"])] if "sequence" in table else defaults.sequences
+    )
+    odometries = (
+        [parse_odometry(v, **odometry_flags) for v in _as_list(table["odometry"])]
+        if "odometry" in table
+        else defaults.odometries
+    )
+    for axis, values in (("lesion", lesions), ("sequence", sequences), ("odometry", odometries)):
+        if not values:
+            raise HippoNavError(f"{where}: the {axis} axis has no values")
+    return Block(overrides, seeds, lesions, sequences, odometries)
+
+
+def build_space(
+    file: str | Path | None = None,
+    *,
+    sets: Sequence[str] = (),
+    seeds: str | None = None,
+    lesions: str | None = None,
+    sequences: str | None = None,
+    odometries: str | None = None,
+    odometry_format: str | None = None,
+    odometry_align: str | None = None,
+    config: str | None = None,
+    dataset: dict[str, Any] | None = None,
+    no_figures: bool = False,
+) -> SweepSpace:
+    """The space of `hippo-nav sweep`: the file's (if any), with the command line's axes replacing the file's
+    axes of the same name in every cross-product and its dataset flags (`dataset`: the keys of
+    `DATASET_KEYS` that were given) replacing the file's. `no_figures`: the base config without figures."""
+    data = read_sweep_file(file) if file is not None else {}
+    odometry_flags = {"file_format": odometry_format, "align": odometry_align}
+    given = {k: v for k, v in (dataset or {}).items() if v is not None}
+    flags = {k: data[k] for k in DATASET_KEYS if k in data} | given
+    dataset_input = _dataset_input(flags)
+    swept = sequences is not None or "sequence" in data or any("sequence" in b for b in _space_tables(data))
+    if swept and dataset_input.path is None:
+        raise HippoNavError(
+            "the sequence axis needs a dataset (--dataset PATH); without one the demo loop runs"
+        )
+    base_file = _absolute(config if config is not None else data.get("config_file"))
+    base: dict[str, Any] = {}
+    if base_file is not None:
+        load_config(base_file)  # the errors of `run --config`
+        base = json.loads(read_text(base_file, "config file"))
+    inline = data.get("config")
+    if inline is not None:
+        if not isinstance(inline, dict):
+            raise HippoNavError(
+                f"{file}: config is a table of config sections (config_file: a JSON file's path)"
+            )
+        base = _merged(base, inline)
+        config_from_dict(base, f"{file}: [config]")
+    if no_figures:
+        base = _merged(base, {"output": {"figures": False}})
+
+    command_line: dict[str, Any] = {}
+    if sets:
+        command_line["set"] = dict(parse_set(s) for s in sets)
+    if seeds is not None:
+        command_line["seeds"] = seeds
+    if lesions is not None:
+        command_line["lesion"] = split_values(lesions)
+    if sequences is not None:
+        command_line["sequence"] = split_values(sequences)
+    if odometries is not None:
+        command_line["odometry"] = split_values(odometries)
+
+    top = _block_from({k: data[k] for k in AXES if k in data}, str(file), Block(), odometry_flags)
+    tables = _space_tables(data) or [{}]
+    blocks = []
+    for i, table in enumerate(tables):
+        where = f"{file}, space {i + 1}"
+        block = _block_from(table, where, top, odometry_flags)
+        blocks.append(_block_from(command_line, "command line", block, odometry_flags))
+    out = data.get("out")
+    return SweepSpace(dataset_input, base, base_file, blocks, None if out is None else str(out))
+
+
+def _flat(table: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """`{"views": {"novelty_threshold": [0.4]}}` (a TOML `[set.views]` table) → `{"views.novelty_threshold": [0.4]}`."""
+    flat: dict[str, Any] = {}
+    for key, value in table.items():
+        if isinstance(value, dict):
+            flat.update(_flat(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
+
+
+def _space_tables(data: dict[str, Any]) -> list[dict[str, Any]]:
+    tables = data.get("space", [])
+    if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
+        raise HippoNavError("space: give a list of tables ([[space]] in TOML, a list of mappings in YAML)")
+    return tables
+
+
+def _merged(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
+    out = copy.deepcopy(base)
+    for key, value in extra.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merged(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+def _absolute(path: Any) -> str | None:
+    return None if path is None else str(Path(os.path.expandvars(str(path))).expanduser().resolve())
+
+
+def _dataset_input(flags: dict[str, Any]) -> DatasetInput:
+    from hippo_nav.datasets import LOADERS
+
+    path = _absolute(flags.get("dataset"))
+    if path is not None and not Path(path).exists():
+        raise HippoNavError(f"dataset {flags['dataset']}: no such file or folder")
+    kind = flags.get("dataset_kind")
+    if kind is not None and kind not in LOADERS:
+        raise HippoNavError(f"dataset_kind {kind!r}: choose from {', '.join(LOADERS)}")
+    options = {k: str(flags[k]) for k in ("left_topic", "right_topic", "topics") if flags.get(k) is not None}
+    if "topics" in options:
+        options["topics"] = str(_absolute(options["topics"]))
+    if path is None and (kind is not None or options):
+        raise HippoNavError("dataset_kind and loader options need a dataset (--dataset PATH)")
+    numbers = {}
+    for name in ("start", "stop", "stride"):
+        value = flags.get(name)
+        if value is not None and (isinstance(value, bool) or not isinstance(value, int)):
+            raise HippoNavError(f"{name} {value!r}: give an integer frame number")
+        numbers[name] = value
+    stride = numbers["stride"] if numbers["stride"] is not None else 1
+    if stride < 1:
+        raise HippoNavError(f"stride {stride}: give 1 or more")
+    return DatasetInput(path, kind, numbers["start"], numbers["stop"], stride, tuple(sorted(options.items())))
