@@ -266,3 +266,13 @@ def test_names_that_are_not_utf8_work_everywhere(tmp_path):
     )
     stdout, stderr = (out.decode("utf-8", "replace") for out in (done.stdout, done.stderr))
     assert done.returncode == 0 and stdout.strip().endswith("ok"), stderr[-2000:]
+
+
+def test_written_files_get_the_permissions_a_plain_open_gives(tmp_path):
+    """Exclusive temporaries must not make results private (mkstemp's 0600) to the people who share them."""
+    umask = os.umask(0o022)
+    try:
+        path = write_text(tmp_path / "metrics.json", "{}\n")
+    finally:
+        os.umask(umask)
+    assert path.stat().st_mode & 0o777 == 0o644

@@ -18,7 +18,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
-import tempfile
+import secrets
 from collections.abc import Iterator
 from pathlib import Path
 from typing import IO
@@ -60,11 +60,18 @@ def _reason(err: OSError) -> str:
 
 
 def _temporary(path: Path, suffix: str) -> tuple[int, Path]:
-    try:
-        fd, name = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=suffix)
-    except OSError as err:
-        raise WriteError(path, _reason(err)) from None
-    return fd, Path(name)
+    """A new file beside `path`, created exclusively (`O_EXCL`: an existing name or link is never opened),
+    with the permissions a plain `open` would give (0666 less the umask; `mkstemp`'s are private)."""
+    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0)
+    for _ in range(100):
+        tmp = path.with_name(f".{path.name}.{secrets.token_hex(4)}{suffix}")
+        try:
+            return os.open(tmp, flags, 0o666), tmp
+        except FileExistsError:
+            continue
+        except OSError as err:
+            raise WriteError(path, _reason(err)) from None
+    raise WriteError(path, "no free temporary name beside it")
 
 
 @contextlib.contextmanager

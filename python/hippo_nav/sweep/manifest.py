@@ -25,12 +25,13 @@ import resource
 import socket
 import subprocess
 import sys
-import tempfile
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from hippo_nav.io.atomic import write_text
 
 MANIFEST = "manifest.json"
 RUN_LOG = "run.log"
@@ -40,23 +41,9 @@ MANIFEST_VERSION = 1
 
 
 def write_json_atomic(path: Path, data: dict[str, Any]) -> Path:
-    """Write `data` as JSON to `path` through a temporary file in the same folder and a rename."""
+    """Write `data` as JSON to `path` atomically (`hippo_nav.io.atomic`: a temporary file, then a rename)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        os.fchmod(
-            handle, 0o644
-        )  # mkstemp makes it private; a manifest is as readable as the results beside it
-        with os.fdopen(handle, "w", encoding="utf-8") as f:
-            json.dump(data, f, indent=2, default=_json_default)
-            f.write("\n")
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(temporary, path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
-    return path
+    return write_text(path, json.dumps(data, indent=2, default=_json_default) + "\n")
 
 
 def _json_default(value: Any) -> Any:
