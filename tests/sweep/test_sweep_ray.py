@@ -132,8 +132,10 @@ def test_a_run_that_fails_mid_sequence_is_listed_and_the_others_finish(tmp_path,
 
 def test_ctrl_c_keeps_what_finished_and_the_same_command_goes_on(tmp_path, demo):
     out = tmp_path / "sweep"
-    command = [sys.executable, "-m", "hippo_nav.cli", "sweep", "--stop", "60", "--seeds", "0-3", "--no-figures",
-               "--no-progress", "--cpus-per-run", "1", "--workers", "2", "--out", str(out)]  # fmt: skip
+    # One run at a time, each long enough (150 frames, seconds) that Ctrl-C sent when the first is done finds the
+    # second running on any machine: with two at a time on an idle machine all four finished before it came.
+    command = [sys.executable, "-m", "hippo_nav.cli", "sweep", "--stop", "150", "--seeds", "0-3", "--no-figures",
+               "--no-progress", "--cpus-per-run", "1", "--workers", "1", "--out", str(out)]  # fmt: skip
     sweep = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         _wait_for(lambda: any(m["status"] == "done" for m in _manifests(out).values()), 180, "a finished run")
