@@ -130,7 +130,10 @@ def test_a_run_that_fails_mid_sequence_is_listed_and_the_others_finish(tmp_path,
     assert "0 to run, 2 done earlier (kept), 2 failed earlier (kept" in capsys.readouterr().out
 
 
-def test_ctrl_c_keeps_what_finished_and_the_same_command_goes_on(tmp_path, demo):
+def test_ctrl_c_keeps_what_finished_and_the_same_command_goes_on(tmp_path, demo, disposition):
+    # SIGINT handled here, so the sweep's process starts with it at its default: a suite started in the
+    # background (CI's `cmd &`) runs with SIGINT ignored, which a child inherits and (rightly) keeps.
+    disposition("SIGINT", signal.default_int_handler)
     out = tmp_path / "sweep"
     # One run at a time, each long enough (150 frames, seconds) that Ctrl-C sent when the first is done finds the
     # second running on any machine: with two at a time on an idle machine all four finished before it came.
