@@ -172,6 +172,17 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
         "sequence's last frame",
     )
 
+    memory = run.add_argument_group("maps that outlive a run")
+    memory.add_argument(
+        "--map",
+        dest="memory_from",
+        default=None,
+        metavar="PREVIOUS_RESULTS",
+        help="start inside the map of an earlier run (its results folder, which holds memory/): lost until a "
+        "familiar view is confirmed by the closure measurement, then placed in that map and extending it; "
+        "metrics.json's loaded_map says when and where (docs/memory.md) (default: a new map)",
+    )
+
     output = run.add_argument_group("output")
     output.add_argument(
         "--out",
@@ -467,6 +478,7 @@ def _run(args: argparse.Namespace) -> int:
             dataset_kind=args.dataset_kind,
             dataset_options=options,
             observers=observers,
+            memory_from=args.memory_from,
         )
     finally:
         for observer in observers:
@@ -695,6 +707,11 @@ def _summary(metrics: dict) -> dict:
     """The headline numbers of a run (metrics.json holds everything)."""
     keys = ["sequence", "note", "frames", "view_cells", "vertices", "loop_closures", "interrupted"]
     summary = {k: metrics[k] for k in keys if metrics.get(k) not in (None, "")}
+    loaded = metrics.get("loaded_map")
+    if loaded:
+        summary["relocalised"] = loaded.get("relocalised")
+        if loaded.get("relocalisation"):
+            summary["relocalised_at_frame"] = loaded["relocalisation"]["frame"]
     for name, entry in (metrics.get("errors") or {}).items():
         if isinstance(entry, dict) and "ate_2d_m" in entry:
             summary[f"ate_2d_m_{name}"] = entry["ate_2d_m"]

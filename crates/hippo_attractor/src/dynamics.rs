@@ -52,6 +52,21 @@ impl ImplicitStepper {
         self.mean_guess = mean;
         Ok(())
     }
+
+    /// The warm start of the next solve (part of the state, for save/resume: the solve stops at a
+    /// tolerance, so another start gives another last bit).
+    pub fn mean_guess(&self) -> f64 {
+        self.mean_guess
+    }
+
+    /// Restore the warm start (a non-finite value is ignored: the solve then starts cold).
+    pub fn set_mean_guess(&mut self, mean_guess: f64) {
+        self.mean_guess = if mean_guess.is_finite() {
+            mean_guess
+        } else {
+            0.0
+        };
+    }
 }
 
 /// Sum of consecutive rows of `width` values (e.g. activity summed over the velocity axes).

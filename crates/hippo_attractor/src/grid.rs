@@ -222,6 +222,15 @@ impl<T: Real> GridModule<T> {
     pub fn params(&self) -> &GridParams {
         &self.params
     }
+    /// The integrator's warm start (part of the state, for save/resume).
+    pub fn warm_start(&self) -> f64 {
+        self.stepper.mean_guess()
+    }
+
+    /// Restore the integrator's warm start.
+    pub fn set_warm_start(&mut self, mean_guess: f64) {
+        self.stepper.set_mean_guess(mean_guess);
+    }
 
     /// Integral term of the velocity-pinning loop (part of the state, for save/resume).
     pub fn pin_bias(&self) -> [f64; 2] {
@@ -282,18 +291,20 @@ impl<T: Real> GridModule<T> {
     /// Average full-torus slices (`S · N²`) over the k² cells into cell layout (`S · C²`).
     pub fn fold(&self, full: &[T]) -> Vec<T> {
         let (n, c, k) = (self.params.n_theta, self.params.cell(), self.params.k);
-        let inv = T::one() / T::of((k * k) as f64);
+        let inv = 1.0 / (k * k) as f64;
         let mut out = Vec::with_capacity(full.len() / (n * n) * c * c);
         for slice in full.chunks(n * n) {
             for iy in 0..c {
                 for ix in 0..c {
-                    let mut acc = T::zero();
+                    // Summed in f64: k² copies of one f32 value then average back to exactly that value,
+                    // so a tiled state folds to itself (a saved state resumes bit for bit).
+                    let mut acc = 0.0;
                     for jy in 0..k {
                         for jx in 0..k {
-                            acc = acc + slice[(iy + jy * c) * n + ix + jx * c];
+                            acc += slice[(iy + jy * c) * n + ix + jx * c].f64();
                         }
                     }
-                    out.push(acc * inv);
+                    out.push(T::of(acc * inv));
                 }
             }
         }

@@ -164,6 +164,15 @@ impl<T: Real> HdRing<T> {
     pub fn activity(&self) -> &[T] {
         &self.m
     }
+    /// The integrator's warm start (part of the state, for save/resume).
+    pub fn warm_start(&self) -> f64 {
+        self.stepper.mean_guess()
+    }
+
+    /// Restore the integrator's warm start.
+    pub fn set_warm_start(&mut self, mean_guess: f64) {
+        self.stepper.set_mean_guess(mean_guess);
+    }
 
     /// Integral term of the velocity-pinning loop (part of the state, for save/resume).
     pub fn pin_bias(&self) -> f64 {

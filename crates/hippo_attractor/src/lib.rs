@@ -39,5 +39,5 @@ pub use place::{PlaceNetwork, PlaceParams};
 pub use real::Real;
 pub use spatial_memory::{
     AuxState, ModuleReadout, SpatialMemory, SpatialMemoryParams, SpatialReadout, ViewInjection,
-    N_MODULES,
+    WarmStarts, N_MODULES,
 };

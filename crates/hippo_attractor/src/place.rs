@@ -97,6 +97,15 @@ impl<T: Real> PlaceNetwork<T> {
     pub fn params(&self) -> &PlaceParams {
         &self.params
     }
+    /// The integrator's warm start (part of the state, for save/resume).
+    pub fn warm_start(&self) -> f64 {
+        self.stepper.mean_guess()
+    }
+
+    /// Restore the integrator's warm start.
+    pub fn set_warm_start(&mut self, mean_guess: f64) {
+        self.stepper.set_mean_guess(mean_guess);
+    }
 
     /// The activity, layout `[θy][θx]`.
     pub fn activity(&self) -> &[T] {

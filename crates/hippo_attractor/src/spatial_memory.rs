@@ -176,6 +176,21 @@ pub struct AuxState {
     pub last_fused: Option<FusedEstimate>,
     /// Which modules are switched off.
     pub lesioned: [bool; N_MODULES],
+    /// The integrators' warm starts: HD ring, each grid module, place network (absent in older saves: a
+    /// cold start, which changes only the last bits).
+    #[serde(default)]
+    pub warm_starts: Option<WarmStarts>,
+}
+
+/// The integrators' warm starts (see [`crate::dynamics::ImplicitStepper`]).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct WarmStarts {
+    /// The HD ring's.
+    pub hd: f64,
+    /// Each grid module's.
+    pub grid: [f64; N_MODULES],
+    /// The place network's.
+    pub place: f64,
 }
 
 /// The whole spatial-memory network, stepped once per camera frame.
@@ -285,6 +300,15 @@ impl<T: Real> SpatialMemory<T> {
             place_pos_rad: self.place_pos_rad,
             last_fused: self.last_fused,
             lesioned: self.params.lesioned,
+            warm_starts: Some(WarmStarts {
+                hd: self.hd.warm_start(),
+                grid: [
+                    self.grids[0].warm_start(),
+                    self.grids[1].warm_start(),
+                    self.grids[2].warm_start(),
+                ],
+                place: self.place.warm_start(),
+            }),
         }
     }
 
@@ -303,6 +327,13 @@ impl<T: Real> SpatialMemory<T> {
         self.place_pos_rad = aux.place_pos_rad;
         self.last_fused = aux.last_fused;
         self.params.lesioned = aux.lesioned;
+        if let Some(w) = aux.warm_starts {
+            self.hd.set_warm_start(w.hd);
+            for (g, start) in self.grids.iter_mut().zip(w.grid) {
+                g.set_warm_start(start);
+            }
+            self.place.set_warm_start(w.place);
+        }
         Ok(())
     }
 

@@ -45,6 +45,12 @@ pub enum MapError {
     /// A graph without vertices.
     #[error("the pose graph is empty; add at least one vertex")]
     EmptyGraph,
+    /// A correction asked for while a session's part of the map is not joined to the rest.
+    #[error("vertices {first} and later belong to a session that has not yet recognised a place of the map it started in; nothing joins them to the earlier vertices, so the map cannot be corrected as a whole until a closure joins them")]
+    Unjoined {
+        /// The session's first vertex.
+        first: usize,
+    },
     /// A vertex no chain of edges joins to the fixed one.
     #[error("vertex {vertex} is not connected to the fixed vertex by any chain of edges; every vertex needs a path to it (add odometry links)")]
     Disconnected {

@@ -313,6 +313,10 @@ pub enum ClosureRejection {
     OutsideGate,
     /// After the online correction the link disagreed with the map (χ² above `max_loop_chi2`).
     Inconsistent,
+    /// The closure joins two vertices of a session that is not yet joined to the map it started in
+    /// ([`ExperienceMap::start_session`]): until then that part has no fixed place, so only a closure onto
+    /// an earlier vertex (the join) is taken.
+    Unjoined,
 }
 
 /// A loop-closure candidate for the caller to verify (see [`ExperienceMap::loop_candidates`]).
@@ -339,7 +343,8 @@ pub struct FrameOutcome {
     pub rejected_closure: Option<ClosureRejection>,
     /// Every matching vertex when more than one matched (RatSLAM mode; sorted by code distance).
     pub ambiguous_candidates: Vec<usize>,
-    /// The frame re-found the map after [`ExperienceMap::start_relocalization`].
+    /// The frame re-found the map after [`ExperienceMap::start_relocalization`], or joined an unjoined
+    /// session to it ([`ExperienceMap::start_session`]).
     pub relocalized: bool,
     /// The agent's pose in the map frame after the frame.
     pub world_from_agent: Option<Pose2>,
@@ -387,6 +392,9 @@ pub struct ExperienceMap {
     /// Distance travelled so far (m) and when the last loop closure was accepted.
     pub(crate) odometer_m: f64,
     pub(crate) odometer_at_last_closure_m: f64,
+    /// The first vertex of a session not yet joined to the earlier vertices ([`Self::start_session`]).
+    #[serde(default)]
+    pub(crate) unjoined_from: Option<usize>,
     #[serde(skip)]
     pub(crate) by_view_cell: HashMap<u64, Vec<usize>>,
 }
@@ -414,6 +422,7 @@ impl ExperienceMap {
             lost: false,
             odometer_m: 0.0,
             odometer_at_last_closure_m: 0.0,
+            unjoined_from: None,
             by_view_cell: HashMap::new(),
         })
     }
@@ -533,10 +542,38 @@ impl ExperienceMap {
         self.elapsed_since_current_s = 0.0;
     }
 
+    /// Start a new session inside this map: a later run that does not know where in the map it starts.
+    /// The next frame founds a vertex of its own at the map's origin, joined to nothing; later frames grow
+    /// that part as usual (odometry links; closures inside it wait, [`ClosureRejection::Unjoined`]). The
+    /// first accepted closure onto an earlier vertex joins it ([`FrameOutcome::relocalized`]): the
+    /// session's part is moved rigidly so that the closure holds, the closure becomes a loop link, and the
+    /// map is one graph again, corrected as usual. The loop gate does not apply to that closure (the
+    /// odometry says nothing about where the session started), so the caller must check it strictly.
+    /// The break between sessions counts as `min_loop_separation_m` of travel. On an empty map this is a
+    /// plain start.
+    pub fn start_session(&mut self) {
+        self.lost = false;
+        self.current = None;
+        self.current_from_agent = Pose2::IDENTITY;
+        self.elapsed_since_current_s = 0.0;
+        if self.vertices.is_empty() {
+            return;
+        }
+        self.unjoined_from = Some(self.vertices.len());
+        self.odometer_m += self.params.min_loop_separation_m;
+        self.odometer_at_last_closure_m = self.odometer_m;
+    }
+
+    /// The first vertex of a session not yet joined to the earlier vertices (None: the map is one).
+    pub fn unjoined_from(&self) -> Option<usize> {
+        self.unjoined_from
+    }
+
     /// Vertices (of `vertices`) that a closure at the next frame may join: far enough back along the
     /// path and inside the loop gate around where the odometry puts the agent after `odometry_step`;
     /// sorted by distance. The caller measures the closure against these and hands it to
-    /// [`Self::on_frame`]. Empty before the first frame or while lost.
+    /// [`Self::on_frame`]. Empty before the first frame, while lost, and while a session is unjoined
+    /// (only the join may close a loop then, and no gate applies to it).
     pub fn loop_candidates(
         &self,
         vertices: &[usize],
@@ -546,6 +583,9 @@ impl ExperienceMap {
         let Some(agent) = self.world_from_agent() else {
             return Ok(Vec::new());
         };
+        if self.unjoined_from.is_some() {
+            return Ok(Vec::new());
+        }
         let predicted = agent.compose(odometry_step);
         let odometer = self.odometer_m + odometry_step.x.hypot(odometry_step.y);
         // The vertex may lie up to one vertex spacing from the place the closure puts the agent.
@@ -584,6 +624,9 @@ impl ExperienceMap {
         let Some(agent) = self.world_from_agent() else {
             return Ok(Vec::new());
         };
+        if self.unjoined_from.is_some() {
+            return Ok(Vec::new());
+        }
         let predicted = agent.compose(odometry_step);
         let mut near: Vec<(f64, usize)> = self
             .vertices
@@ -779,7 +822,12 @@ impl ExperienceMap {
         let agent = self.vertices[current]
             .world_from_vertex
             .compose(&self.current_from_agent);
-        if let Some(closure) = input.loop_closure {
+        if let (Some(closure), Some(first)) = (input.loop_closure, self.unjoined_from) {
+            if closure.target < first {
+                return self.join(current, first, closure, input, outcome);
+            }
+            outcome.rejected_closure = Some(ClosureRejection::Unjoined);
+        } else if let Some(closure) = input.loop_closure {
             let world_from_target = self.vertices[closure.target].world_from_vertex;
             let claimed = world_from_target.compose(&closure.agent_from_target.inverse());
             match self.gate(&agent, closure.target, &claimed) {
@@ -806,6 +854,51 @@ impl ExperienceMap {
             self.advance_to_new_vertex(current, input)?;
             outcome.created = true;
         }
+        Ok(false)
+    }
+
+    /// The join of an unjoined session ([`Self::start_session`]) by a closure onto an earlier vertex: the
+    /// session's vertices move rigidly to where the closure puts the agent, then the closure is added as
+    /// any loop link (vertex at the agent, link, online correction). Returns whether it was added; if not,
+    /// the session stays unjoined where it was.
+    fn join(
+        &mut self,
+        current: usize,
+        first: usize,
+        closure: LoopMeasurement,
+        input: &FrameInput,
+        outcome: &mut FrameOutcome,
+    ) -> Result<bool> {
+        let agent = self.vertices[current]
+            .world_from_vertex
+            .compose(&self.current_from_agent);
+        let claimed = self.vertices[closure.target]
+            .world_from_vertex
+            .compose(&closure.agent_from_target.inverse());
+        let map_from_session = claimed.compose(&agent.inverse());
+        for v in &mut self.vertices[first..] {
+            v.world_from_vertex = map_from_session.compose(&v.world_from_vertex);
+        }
+        self.unjoined_from = None;
+        let here = self.advance_to_new_vertex(current, input)?;
+        outcome.created = true;
+        let link = Link {
+            from: here,
+            to: closure.target,
+            from_from_to: closure.agent_from_target,
+            elapsed_s: 0.0,
+            kind: EdgeKind::Loop,
+            information: closure.information,
+        };
+        if self.add_loop_link(link, outcome)? {
+            outcome.relocalized = true;
+            return Ok(true);
+        }
+        let session_from_map = map_from_session.inverse();
+        for v in &mut self.vertices[first..] {
+            v.world_from_vertex = session_from_map.compose(&v.world_from_vertex);
+        }
+        self.unjoined_from = Some(first);
         Ok(false)
     }
 
@@ -968,6 +1061,9 @@ impl ExperienceMap {
     ) -> Result<CorrectionReport> {
         if self.vertices.is_empty() {
             return Err(MapError::EmptyGraph);
+        }
+        if let Some(first) = self.unjoined_from {
+            return Err(MapError::Unjoined { first });
         }
         let mut graph = self.pose_graph();
         let report = match corrector {

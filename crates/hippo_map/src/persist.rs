@@ -130,6 +130,11 @@ fn validate(map: &ExperienceMap) -> Result<()> {
             return Err(MapError::UnknownVertex { vertex, len });
         }
     }
+    if let Some(first) = map.unjoined_from {
+        if first > len {
+            return Err(MapError::UnknownVertex { vertex: first, len });
+        }
+    }
     check_pose(
         "stored odometry since the current vertex",
         &map.current_from_agent,

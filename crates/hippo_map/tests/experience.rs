@@ -563,3 +563,139 @@ fn closures_outside_the_gate_or_against_the_map_are_rejected() {
     }
     assert_eq!(vertices, poses.len());
 }
+
+/// The out-and-back drive as two sessions: the first drives the outbound leg and is saved; the second
+/// starts (as a new map session, not knowing where) on the way back, grows a part of its own, and is
+/// joined to the first by one measured closure, which places the whole second session in the first's
+/// frame.
+#[test]
+fn a_second_session_grows_unjoined_until_a_closure_joins_it_to_the_first() {
+    let (truth, odometry) = out_and_back();
+    let mut first = ExperienceMap::new(MapParams::default()).unwrap();
+    let mut frame_of_vertex: Vec<usize> = Vec::new();
+    for k in 0..60 {
+        if first
+            .on_frame(&frame_of(k, &truth, &odometry))
+            .unwrap()
+            .created
+        {
+            frame_of_vertex.push(k);
+        }
+    }
+    let mut map = from_bytes(&to_bytes(&first).unwrap()).unwrap();
+    let earlier = map.vertices().len();
+    map.start_session();
+    assert_eq!(map.unjoined_from(), Some(earlier));
+    // The second session starts at frame 85 (after the U-turn, heading back west) with odometry of its own.
+    let start = 85;
+    let mut joined_at = None;
+    for k in start..140 {
+        let mut input = frame_of(k, &truth, &odometry);
+        if k == start {
+            input.odometry_step = Pose2::IDENTITY;
+        }
+        if map.unjoined_from().is_some() {
+            assert!(map
+                .loop_candidates(&[0, 1, 2], &Pose2::IDENTITY)
+                .unwrap()
+                .is_empty());
+            assert!(matches!(
+                map.correct(&Corrector::Relaxation(RelaxationParams::default())),
+                Err(hippo_map::MapError::Unjoined { first }) if first == earlier
+            ));
+        }
+        if k == 95 {
+            // A closure between two vertices of the unjoined session waits for the join.
+            input.loop_closure = Some(LoopMeasurement {
+                target: earlier,
+                agent_from_target: Pose2::new(-10.0, 0.0, 0.0),
+                information: isotropic_information(0.05, 0.005),
+            });
+            let out = map.on_frame(&input).unwrap();
+            assert_eq!(out.rejected_closure, Some(ClosureRejection::Unjoined));
+            assert!(!out.relocalized);
+            continue;
+        }
+        if k == 110 {
+            // Truth: the outbound vertex nearest to the agent, 2.5 m to the side, seen the other way.
+            let (target, _) = frame_of_vertex
+                .iter()
+                .enumerate()
+                .map(|(v, &f)| (v, (truth[f].x - truth[k].x).hypot(truth[f].y - truth[k].y)))
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .unwrap();
+            input.loop_closure = Some(LoopMeasurement {
+                target,
+                agent_from_target: truth[k].between(&truth[frame_of_vertex[target]]),
+                information: isotropic_information(0.05, 0.005),
+            });
+            let out = map.on_frame(&input).unwrap();
+            assert!(out.relocalized, "{out:?}");
+            assert_eq!(out.loop_closure.map(|(_, to)| to), Some(target));
+            joined_at = Some(k);
+            // The agent now stands where the closure puts it on the first session's map (one link joins the
+            // two parts, so the correction leaves it exact), which is where the truth puts it up to the first
+            // session's odometry drift.
+            let agent = out.world_from_agent.unwrap();
+            let measured = input.loop_closure.unwrap();
+            let expected = map.vertices()[target]
+                .world_from_vertex
+                .compose(&measured.agent_from_target.inverse());
+            assert!(
+                (agent.x - expected.x).hypot(agent.y - expected.y) < 0.01,
+                "{agent:?} vs {expected:?}"
+            );
+            let truth_here = truth[0].between(&truth[k]);
+            assert!(
+                (agent.x - truth_here.x).hypot(agent.y - truth_here.y) < 1.0,
+                "{agent:?} vs {truth_here:?}"
+            );
+            assert!(wrap(agent.yaw - expected.yaw).abs() < 1e-3);
+            continue;
+        }
+        let out = map.on_frame(&input).unwrap();
+        assert!(!out.relocalized);
+    }
+    assert_eq!(joined_at, Some(110));
+    assert_eq!(map.unjoined_from(), None);
+    // One graph again: it corrects, and the first session's vertices did not move at the join.
+    map.correct(&Corrector::Relaxation(RelaxationParams::default()))
+        .unwrap();
+    for v in 0..earlier {
+        let a = first.vertices()[v].world_from_vertex;
+        let b = map.vertices()[v].world_from_vertex;
+        assert!(
+            (a.x - b.x).hypot(a.y - b.y) < 0.5,
+            "vertex {v}: {a:?} → {b:?}"
+        );
+    }
+    // The session's vertices made before the join were moved with it: near the return leg, in the
+    // first session's frame (2.5 m north of the outbound leg, within the odometry's drift).
+    let session = &map.vertices()[earlier];
+    assert!(
+        (session.world_from_vertex.y - 2.5).abs() < 1.0,
+        "{session:?}"
+    );
+}
+
+#[test]
+fn an_unjoined_session_survives_save_and_load() {
+    let (truth, odometry) = out_and_back();
+    let mut map = ExperienceMap::new(MapParams::default()).unwrap();
+    for k in 0..30 {
+        map.on_frame(&frame_of(k, &truth, &odometry)).unwrap();
+    }
+    let odometer = map.odometer_m();
+    map.start_session();
+    assert!(map.odometer_m() >= odometer + MapParams::default().min_loop_separation_m);
+    for k in 30..40 {
+        map.on_frame(&frame_of(k, &truth, &odometry)).unwrap();
+    }
+    let loaded = from_bytes(&to_bytes(&map).unwrap()).unwrap();
+    assert_eq!(loaded, map);
+    assert!(loaded.unjoined_from().is_some());
+    // A session started on an empty map is a plain start.
+    let mut empty = ExperienceMap::new(MapParams::default()).unwrap();
+    empty.start_session();
+    assert_eq!(empty.unjoined_from(), None);
+}

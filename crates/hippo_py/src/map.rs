@@ -24,7 +24,7 @@ use numpy::{
     IntoPyArray, PyArray2, PyArrayDyn, PyArrayMethods, PyReadonlyArrayDyn, PyUntypedArrayMethods,
 };
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{PyBytes, PyDict};
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -256,13 +256,14 @@ impl PyFrameOutcome {
         self.inner.loop_closure
     }
     /// Why this frame's candidate closure was not added: "too_recent", "outside_gate",
-    /// "inconsistent", or None.
+    /// "inconsistent", "unjoined" (inside a session not yet joined to its map), or None.
     #[getter]
     fn rejected_closure(&self) -> Option<&'static str> {
         self.inner.rejected_closure.map(|r| match r {
             ClosureRejection::TooRecent => "too_recent",
             ClosureRejection::OutsideGate => "outside_gate",
             ClosureRejection::Inconsistent => "inconsistent",
+            ClosureRejection::Unjoined => "unjoined",
         })
     }
     /// Every matching vertex when more than one matched (RatSLAM mode).
@@ -806,6 +807,19 @@ impl PyExperienceMap {
         self.map.start_relocalization();
     }
 
+    /// Start a new session inside this map, not knowing where: the session grows a part of its own
+    /// until a closure onto an earlier vertex joins it (no loop gate applies to that closure; check it
+    /// strictly). See docs/map.md, "Sessions".
+    fn start_session(&mut self) {
+        self.map.start_session();
+    }
+
+    /// The first vertex of a session not yet joined to the earlier vertices (None: the map is one).
+    #[getter]
+    fn unjoined_from(&self) -> Option<usize> {
+        self.map.unjoined_from()
+    }
+
     /// Save to a versioned, checksummed file (written atomically).
     fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
         let map = &self.map;
@@ -817,6 +831,21 @@ impl PyExperienceMap {
     fn load(py: Python<'_>, path: PathBuf) -> PyResult<Self> {
         let map = py
             .detach(|| ExperienceMap::load(&path))
+            .map_err(to_py_err)?;
+        Ok(Self { map })
+    }
+
+    /// The bytes `save` writes (the versioned, checksummed map format).
+    fn to_bytes<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyBytes>> {
+        let bytes = hippo_map::to_bytes(&self.map).map_err(to_py_err)?;
+        Ok(PyBytes::new(py, &bytes))
+    }
+
+    /// A map from the bytes of `to_bytes` (or a map file), checked as `load` checks a file.
+    #[staticmethod]
+    fn from_bytes(py: Python<'_>, data: &[u8]) -> PyResult<Self> {
+        let map = py
+            .detach(|| hippo_map::from_bytes(data))
             .map_err(to_py_err)?;
         Ok(Self { map })
     }

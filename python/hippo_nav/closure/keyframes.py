@@ -76,6 +76,29 @@ class ClosureConfig(ConfigSection):
     closure_spacing_m: float = Field(
         3.0, ge=0.0, description="travel (m) between accepted closures; closer ones add little"
     )
+    relocalisation_min_inliers: int = Field(
+        60,
+        ge=6,
+        le=20000,
+        description="PnP inliers a measurement needs to relocalise in a loaded map (no odometry gate checks it, "
+        "so twice the closure bar)",
+    )
+    relocalisation_confirmations: int = Field(
+        2,
+        ge=1,
+        le=100,
+        description="measurements from different frames that must agree on where the session lies in the "
+        "loaded map before it is joined",
+    )
+    relocalisation_window_m: float = Field(
+        30.0, gt=0.0, description="travel within which the agreeing measurements must fall"
+    )
+    relocalisation_agreement_m: float = Field(
+        1.0, gt=0.0, description="agreeing measurements put the agent within this distance of each other"
+    )
+    relocalisation_agreement_rad: float = Field(
+        0.05, gt=0.0, description="… and within this heading of each other"
+    )
     stereo_row_tolerance_px: float = Field(1.5, gt=0.0)
     stereo_guess_depth_m: float = Field(20.0, gt=0.0, description="depth whose disparity starts stereo KLT")
     forward_backward_px: float = Field(1.0, gt=0.0, description="max left-right-left KLT error")

@@ -18,6 +18,14 @@ when far enough back along the path and inside its loop gate (`ExperienceMap.loo
 stereo frame measures the nearest `candidates_per_frame` against their stored keyframes (ORB + PnP,
 `LoopMeasurer`) and the first verified one is proposed, at most one accepted closure per
 `closure_spacing_m` of travel. Every new vertex keeps its frame's keyframe.
+
+Relocalisation (a session started inside a loaded map, `ExperienceMap.start_session`, docs/memory.md): until
+the session is joined the map offers no candidates (the odometry says nothing about where in the old map the
+agent is), so a familiar view of the loaded map is measured directly against the keyframes of its anchor vertex
+and neighbours, with the stricter `relocalisation_min_inliers`. Each such measurement is a hypothesis of where
+the session lies in the old map; the closure is proposed (and the map joins the session with it, without a
+gate) only once `relocalisation_confirmations` hypotheses from different frames within
+`relocalisation_window_m` of travel put the agent at the same place (`relocalisation_agreement_m`, `_rad`).
 """
 
 from __future__ import annotations
@@ -29,10 +37,13 @@ from typing import Protocol
 
 import numpy as np
 
+from hippo_nav._core import HippoNavError
 from hippo_nav.closure.keyframes import ClosureConfig, Keyframe, KeyframeExtractor
 from hippo_nav.closure.measure import LoopMeasurer
 from hippo_nav.datasets.base import StereoCalibration, StereoFrame
+from hippo_nav.geometry import se2_between, se2_compose
 from hippo_nav.map import ExperienceMap, MapFrameOutcome
+from hippo_nav.memory import split_ragged, stack_ragged
 from hippo_nav.workers import Worker
 
 log = logging.getLogger("hippo_nav.pipeline")
@@ -117,6 +128,8 @@ class ViewCellPnpClosure:
         self._made: Keyframe | None = None  # the current frame's keyframe, when a closure attempt made one
         self._proposed = False  # whether the current frame proposed a closure
         self._closure_odometer_m = -np.inf
+        # Relocalisation hypotheses: (odometer m, the session's pose in the loaded map (x, y, yaw)).
+        self._hypotheses: list[tuple[float, np.ndarray]] = []
 
     @property
     def stored(self) -> int:
@@ -131,6 +144,8 @@ class ViewCellPnpClosure:
         self._made, self._proposed = None, False
         cfg = self.config
         experience_map, frame = context.experience_map, context.frame
+        if experience_map.unjoined_from is not None:
+            return self._relocalise(context, int(experience_map.unjoined_from))
         if experience_map.odometer_m - self._closure_odometer_m < cfg.closure_spacing_m:
             return NO_ATTEMPT
         anchor = context.anchor_vertex
@@ -158,6 +173,97 @@ class ViewCellPnpClosure:
                 self._proposed = True
                 return ClosureAttempt(closure, "measured")
         return ClosureAttempt(None, why)
+
+    def _relocalise(self, context: ClosureContext, first_session_vertex: int) -> ClosureAttempt:
+        """A familiar view of the loaded map, measured against its anchor's keyframes (module doc)."""
+        cfg = self.config
+        anchor = context.anchor_vertex
+        if anchor is None or anchor >= first_session_vertex:
+            return NO_ATTEMPT
+        experience_map = context.experience_map
+        here = experience_map.world_from_agent
+        if here is None:  # the session's first frame: nothing to place yet
+            return NO_ATTEMPT
+        # Where the session's odometry puts the agent after this frame's step (in the session's frame).
+        agent_in_session = se2_compose(np.array(here), np.array(context.planar_step))
+        reach = cfg.anchor_neighbours
+        nearby = [v for v in range(anchor - reach, anchor + reach + 1) if 0 <= v < first_session_vertex]
+        try:
+            current = self.extract(context.frame.left, context.frame.right)
+        except Exception as err:  # noqa: BLE001 - a frame without a keyframe relocalises nothing
+            log.warning(
+                "frame %s: no stereo keyframe (%s); no relocalisation attempted", context.frame.index, err
+            )
+            return ClosureAttempt(None, "no_current_keyframe")
+        self._made = current
+        odometer = experience_map.odometer_m + float(np.hypot(*context.planar_step[:2]))
+        self._hypotheses = [h for h in self._hypotheses if odometer - h[0] <= cfg.relocalisation_window_m]
+        why = "no_keyframe"
+        for vertex in sorted(nearby, key=lambda v: abs(v - anchor)):
+            keyframe = self._keyframe(vertex)
+            if keyframe is None:
+                continue
+            measurement, why = self.measurer.measure(keyframe, current)
+            if measurement is None:
+                continue
+            if measurement.inliers < cfg.relocalisation_min_inliers:
+                why = "relocalisation_too_few_inliers"
+                continue
+            # The session's pose in the loaded map that this measurement implies.
+            agent_in_map = se2_compose(
+                np.array(experience_map.vertex_pose(vertex)),
+                se2_between(np.array(measurement.agent_from_target), np.zeros(3)),
+            )
+            map_from_session = se2_compose(agent_in_map, se2_between(agent_in_session, np.zeros(3)))
+            agreeing = sum(
+                self._agree(map_from_session, earlier, agent_in_session) for _, earlier in self._hypotheses
+            )
+            self._hypotheses.append((odometer, map_from_session))
+            if agreeing + 1 < cfg.relocalisation_confirmations:
+                return ClosureAttempt(None, "relocalisation_unconfirmed")
+            self._proposed = True
+            closure = ProposedClosure(vertex, measurement.agent_from_target, measurement.information)
+            return ClosureAttempt(closure, "measured")
+        return ClosureAttempt(None, why)
+
+    def _agree(self, a: np.ndarray, b: np.ndarray, agent_in_session: np.ndarray) -> bool:
+        """Whether two placements of the session put the agent at the same place and heading."""
+        pa, pb = se2_compose(a, agent_in_session), se2_compose(b, agent_in_session)
+        off = se2_between(pa, pb)
+        return bool(
+            np.hypot(off[0], off[1]) <= self.config.relocalisation_agreement_m
+            and abs(off[2]) <= self.config.relocalisation_agreement_rad
+        )
+
+    def export_keyframes(self) -> dict[str, np.ndarray]:
+        """Every vertex's keyframe, for a memory folder (waits for those still being extracted)."""
+        self.finish()
+        vertices = sorted(self.keyframes)
+        frames = [self.keyframes[v] for v in vertices]
+        return {
+            "vertex": np.array(vertices, np.int64),
+            "count": np.array([len(k) for k in frames], np.int64),
+            "pixels_px": stack_ragged([k.pixels_px for k in frames], 2, np.float32),
+            "descriptors": stack_ragged([k.descriptors for k in frames], 32, np.uint8),
+            "points_m": stack_ragged([k.points_m for k in frames], 3, np.float32),
+            "closure_odometer_m": np.array(self._closure_odometer_m),
+        }
+
+    def restore_keyframes(self, saved: dict[str, np.ndarray]) -> None:
+        """The keyframes of `export_keyframes`, kept as this proposer's (replacing any)."""
+        parts = split_ragged(saved["count"], saved["pixels_px"], saved["descriptors"], saved["points_m"])
+        if len(parts) != len(saved["vertex"]):
+            raise HippoNavError("saved keyframes are inconsistent: one count per vertex is needed")
+        self.keyframes = {
+            int(vertex): Keyframe(
+                np.ascontiguousarray(px, np.float32),
+                np.ascontiguousarray(desc, np.uint8),
+                np.ascontiguousarray(points, np.float32),
+            )
+            for vertex, (px, desc, points) in zip(saved["vertex"].tolist(), parts)
+        }
+        self._pending = {}
+        self._closure_odometer_m = float(saved["closure_odometer_m"])
 
     def after_map(
         self, frame: StereoFrame, outcome: MapFrameOutcome, experience_map: ExperienceMap, worker: Worker

@@ -211,6 +211,16 @@ class CompactView:
         return out
 
     @property
+    def values(self) -> np.ndarray:
+        """The stored codes (read-only float32): HD fields, then each module's (NaN for one storing nothing)."""
+        return self._values
+
+    @property
+    def sizes(self) -> tuple[int, int, tuple[int, ...]]:
+        """(Nθ of the HD ring, N of the grid torus, the modules' k): the engine's, shared by all views."""
+        return self._hd_n_theta, self._grid_n_theta, self._ks
+
+    @property
     def nbytes(self) -> int:
         """Bytes of the stored codes (float32); the sizes Nθ, N and k are the engine's, shared by all views."""
         return self._values.nbytes

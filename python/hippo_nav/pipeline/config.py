@@ -202,7 +202,9 @@ class OutputConfig(_Section):
         le=1000.0,
         description="spatial bin of the firing-rate maps (0.1–1000 m: finer bins would need gigabytes over a city)",
     )
-    save_map: bool = True
+    save_map: bool = Field(
+        True, description="write map.bin, map.g2o and memory/ (what `--map` starts a later run inside)"
+    )
 
 
 class PipelineConfig(_Section):

@@ -73,7 +73,8 @@ class ViewRecall:
     def candidates(self, planar_step: Sequence[float], experience_map: ExperienceMap) -> list[int] | None:
         """The cells to compare this frame with (None: all; see `ViewSearchConfig`)."""
         cfg = self.search
-        if not cfg.near_only or len(experience_map) == 0:
+        # In a session not yet joined to its loaded map, the odometry says nothing about where the agent is.
+        if not cfg.near_only or len(experience_map) == 0 or experience_map.unjoined_from is not None:
             return None
         radius_m = min(experience_map.loop_gate()[0] + cfg.radius_margin_m, cfg.max_radius_m)
         step = (float(planar_step[0]), float(planar_step[1]), float(planar_step[2]))
@@ -119,6 +120,16 @@ class ViewRecall:
         cfg = self.injection_config
         if not cfg.enabled:
             return None, 0.0
+        if (
+            experience_map is not None
+            and experience_map.unjoined_from is not None
+            and obs.cell_id is not None
+        ):
+            # A session not yet joined to its loaded map: the loaded cells' states are in a frame the networks
+            # do not share yet (they are set when the session joins, `placed_state`).
+            anchor = self._cell_vertex.get(int(obs.cell_id))
+            if anchor is None or anchor < experience_map.unjoined_from:
+                return None, 0.0
         if cfg.placement == "measured":
             return self._injection_measured(obs, measured, experience_map)
         if not self._revisit(obs):
@@ -202,6 +213,88 @@ class ViewRecall:
         phases and widths (88 bytes), not the patterns (~50 kB)."""
         if obs.is_new and obs.cell_id is not None:
             self.stored[int(obs.cell_id)] = CompactView.from_engine(engine)
+
+    def placed_state(
+        self, cell: int, experience_map: ExperienceMap, world_from_agent: Sequence[float]
+    ) -> tuple[float, tuple[float, float]] | None:
+        """The heading and torus phase the networks should hold for the agent at `world_from_agent` (map
+        frame), from what `cell` stored where it was made, moved as a measured injection moves it (None: the
+        cell stores nothing, or every module is lesioned). Used to set the networks when a session joins a
+        loaded map (docs/memory.md)."""
+        stored, anchor = self.stored.get(cell), self._cell_vertex.get(cell)
+        offset = self._cell_offset.get(cell)
+        if stored is None or anchor is None or offset is None:
+            return None
+        modules = [m for m in stored.modules if m is not None]
+        if not modules:
+            return None
+        world_from_made = se2_compose(np.array(experience_map.vertex_pose(anchor)), np.array(offset))
+        forward_m, left_m, yaw_rad = (
+            float(v) for v in se2_between(world_from_made, np.array(world_from_agent))
+        )
+        psi = stored.hd.heading_rad
+        scale = 2.0 * np.pi / self.torus_period_m
+        dx = scale * (np.cos(psi) * forward_m - np.sin(psi) * left_m)
+        dy = scale * (np.sin(psi) * forward_m + np.cos(psi) * left_m)
+        # The coarsest stored module fixes the torus phase; finer ones agree with it modulo their period.
+        phase = modules[0].phase_rad
+        return psi + yaw_rad, ((phase[0] + dx) % (2 * np.pi), (phase[1] + dy) % (2 * np.pi))
+
+    def forget_states(self, cells: Sequence[int]) -> None:
+        """Drop what `cells` recall (their stored states were made in a frame the networks have left)."""
+        for cell in cells:
+            self.stored.pop(int(cell), None)
+
+    def export_state(self) -> dict[str, np.ndarray]:
+        """Everything this policy keeps, as arrays for a memory folder (the descriptor's cells apart)."""
+        stored_cells = sorted(self.stored)
+        sizes = next(iter(self.stored.values())).sizes if self.stored else (0, 0, ())
+        cells = sorted(self._cell_vertex)
+        with_offset = sorted(self._cell_offset)
+        last = sorted(self._last_active.items())
+        return {
+            "stored_cell": np.array(stored_cells, np.int64),
+            "stored_values": np.array([self.stored[c].values for c in stored_cells], np.float32).reshape(
+                len(stored_cells), -1 if stored_cells else 0
+            ),
+            "stored_sizes": np.array([sizes[0], sizes[1], *sizes[2]], np.int64),
+            "anchor_cell": np.array(cells, np.int64),
+            "anchor_vertex": np.array([self._cell_vertex[c] for c in cells], np.int64),
+            "offset_cell": np.array(with_offset, np.int64),
+            "offset": np.array([self._cell_offset[c] for c in with_offset], np.float64).reshape(-1, 3),
+            "made_at_m": np.array(self._made_at_m, np.float64),
+            # Where the agent was in the passage of view cells (what a session continuing needs).
+            "active_cell": np.array(-1 if self.active_cell is None else self.active_cell, np.int64),
+            "active_run": np.array(self._active_run, np.int64),
+            "last_active": np.array(last, np.int64).reshape(-1, 2),
+            "activation_gap": np.array(
+                -1 if self._activation_gap is None else self._activation_gap, np.int64
+            ),
+        }
+
+    def restore_state(self, saved: dict[str, np.ndarray], *, resume: bool) -> None:
+        """Take the state of `export_state`; with `resume` also where the agent was (else: no active cell)."""
+        sizes = [int(v) for v in saved["stored_sizes"]]
+        self.stored = {
+            int(c): CompactView(values, sizes[0], sizes[1], sizes[2:])
+            for c, values in zip(saved["stored_cell"].tolist(), np.asarray(saved["stored_values"]))
+        }
+        self._cell_vertex = {int(c): int(v) for c, v in zip(saved["anchor_cell"], saved["anchor_vertex"])}
+        self._cell_offset = {
+            int(c): (float(o[0]), float(o[1]), float(o[2]))
+            for c, o in zip(saved["offset_cell"], saved["offset"])
+        }
+        self._vertex_cells = {}
+        for cell in sorted(self._cell_vertex):
+            self._vertex_cells.setdefault(self._cell_vertex[cell], []).append(cell)
+        self._made_at_m = [float(v) for v in saved["made_at_m"]]
+        if resume:
+            active = int(saved["active_cell"])
+            self.active_cell = None if active < 0 else active
+            self._active_run = int(saved["active_run"])
+            self._last_active = {int(c): int(p) for c, p in saved["last_active"]}
+            gap = int(saved["activation_gap"])
+            self._activation_gap = None if gap < 0 else gap
 
     def anchor(
         self,

@@ -14,6 +14,7 @@ trajectories first, then metrics, then figures, so a failing figure never costs 
 | `frames.csv` | per frame: odometry status, motion given to the engine, view cell, injection, vertex, closures |
 | `bump_table.csv` | the paper's bump table (μ, σ of every bump of every module, fused and place) at chosen frames |
 | `map.bin`, `map.g2o` | the corrected experience map (versioned save file; g2o pose graph) |
+| `memory/` | what a later run needs to start inside this map (`--map`; `hippo_nav.memory`, docs/memory.md) |
 | `metrics.json` | sizes, loop closures (precision, recall), timing per stage and, with ground truth, errors |
 | `cognitive_map.png`, `neural_state_NNNNNN.png`, `rate_maps.png` | figures (see `plots.py`) |
 
@@ -58,6 +59,7 @@ from hippo_nav._core import HippoNavError
 from hippo_nav.io import write_kitti_poses, write_tum
 from hippo_nav.io.atomic import WriteError, open_atomic, write_text
 from hippo_nav.map import ExperienceMap
+from hippo_nav.memory import MEMORY_FOLDER, SavedMemory, write_memory
 from hippo_nav.metrics import KITTI_SEGMENT_LENGTHS_M, ate_rmse, relative_errors_kitti, trajectory_distances_m
 from hippo_nav.pipeline.config import PipelineConfig, resolved_config_dict
 from hippo_nav.pipeline.records import STAGES, RunRecord, RunResult
@@ -67,6 +69,7 @@ log = logging.getLogger("hippo_nav.pipeline")
 RESULT_FILES = (
     "config.json", "frames.csv", "bump_table.csv", "map.bin", "map.g2o", "metrics.json",
     "cognitive_map.png", "rate_maps.png", "mapping.mp4",
+    "memory/memory.json", "memory/map.bin", "memory/views.npz", "memory/keyframes.npz", "memory/state.npz",
 )  # fmt: skip
 RESULT_PATTERNS = (
     "trajectory_*.kitti.txt",
@@ -482,9 +485,11 @@ def write_results(
     frontend: dict[str, Any] | None = None,
     experience_map: ExperienceMap | None = None,
     shield: Callable[[], AbstractContextManager[Any]] = contextlib.nullcontext,
+    memory: SavedMemory | None = None,
 ) -> None:
     """Write the results folder of a run (module doc); `result.out_dir` is set. `frontend`: the resolved
-    front-end parameters for config.json; `experience_map`: the map to save (map.bin, map.g2o); `shield`:
+    front-end parameters for config.json; `experience_map`: the map to save (map.bin, map.g2o); `memory`:
+    what a later run needs to start inside this one's map (`memory/`, docs/memory.md); `shield`:
     a context in which signals wait (the runner's), entered for everything but the figures, which an
     interrupt only cuts short (the figures drawn by then are listed in metrics.json).
 
@@ -493,7 +498,7 @@ def write_results(
     elsewhere (`rescue_folder_candidates`) and `ResultsNotWrittenError` names the file that failed and
     that folder, so no finished run is lost."""
     try:
-        _write_results(result, out, config, frontend, experience_map, shield)
+        _write_results(result, out, config, frontend, experience_map, shield, memory)
     except WriteError as failure:
         log.error("%s", failure)
         rescue_error = "no folder to write to"
@@ -501,7 +506,7 @@ def write_results(
             rescue = None
             try:
                 rescue = Path(tempfile.mkdtemp(prefix="hippo_nav_results_", dir=parent))
-                _write_results(result, rescue, config, frontend, experience_map, shield)
+                _write_results(result, rescue, config, frontend, experience_map, shield, memory)
             except (OSError, WriteError) as err:
                 rescue_error = str(err)
                 if rescue is not None:
@@ -518,9 +523,10 @@ def _write_results(
     frontend: dict[str, Any] | None,
     experience_map: ExperienceMap | None,
     shield: Callable[[], AbstractContextManager[Any]],
+    memory: SavedMemory | None,
 ) -> None:
     with shield():
-        _write_data(result, out, config, frontend, experience_map)
+        _write_data(result, out, config, frontend, experience_map, memory)
     metrics = result.metrics
     if config.output.figures:
         from hippo_nav.pipeline.plots import write_run_figures
@@ -551,6 +557,7 @@ def _write_data(
     config: PipelineConfig,
     frontend: dict[str, Any] | None,
     experience_map: ExperienceMap | None,
+    memory: SavedMemory | None,
 ) -> None:
     """Everything but the figures, trajectories first (module doc)."""
     try:
@@ -583,3 +590,5 @@ def _write_data(
                 save(out / name)
             except HippoNavError as err:  # the core's file error, as the one every other file gives
                 raise WriteError(out / name, str(err).rsplit(": ", 1)[-1]) from None
+    if config.output.save_map and memory is not None:
+        write_memory(memory, out / MEMORY_FOLDER)

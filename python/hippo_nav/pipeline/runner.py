@@ -29,6 +29,7 @@ from hippo_nav._core import HippoNavError
 from hippo_nav.closure import ClosureProposer
 from hippo_nav.datasets.base import DatasetExtras, StereoDataset
 from hippo_nav.io import DatasetError
+from hippo_nav.memory import SavedMemory, read_memory
 from hippo_nav.pipeline import parts
 from hippo_nav.pipeline.assemble import assemble_result
 from hippo_nav.pipeline.config import PipelineConfig
@@ -57,7 +58,8 @@ class Pipeline:
     `dataset` follows `hippo_nav.datasets.StereoDataset`. `progress` shows a tqdm bar with the frame rate
     and the map size. `odometry`, `view_cells` and `closure` replace the parts the config's `parts` section
     names (`frontend.Odometry`, `view_cells.ViewDescriptor`, `closure.ClosureProposer`); `observers` watch
-    the run frame by frame (`observers.Observer`). `system` is the per-frame system; `odometry` the
+    the run frame by frame (`observers.Observer`); `memory` (`hippo_nav.memory.read_memory`) starts the run
+    as a new session inside an earlier run's map. `system` is the per-frame system; `odometry` the
     odometry; `record` what has been recorded so far.
     """
 
@@ -71,6 +73,7 @@ class Pipeline:
         view_cells: ViewDescriptor | None = None,
         closure: ClosureProposer | None = None,
         observers: Sequence[Observer] = (),
+        memory: SavedMemory | None = None,
     ) -> None:
         self.dataset = dataset
         self.config = config if config is not None else PipelineConfig()
@@ -82,6 +85,7 @@ class Pipeline:
             view_cells=view_cells,
             closure=closure,
             stride=self.extras.stride,
+            memory=memory,
         )
         # Front-end parts can be given (e.g. another VO in a notebook); by default they come from the config.
         self.odometry: Odometry = (
@@ -281,15 +285,34 @@ class Pipeline:
             )
             result.metrics = evaluate(result, self._facts(), correction, stopped_by)
             result.metrics["timing"]["correction_s"] = correction_s
+            if self.system.loaded is not None:
+                result.metrics["loaded_map"] = {
+                    **self.system.loaded,
+                    "relocalised": self.system.relocalisation is not None,
+                    "relocalisation": self.system.relocalisation,
+                }
             if interrupted and stopped_by is None:
                 result.metrics["interrupted_by"] = signals.caught or "SIGINT"
             elif signals.caught is not None:  # every frame, but a signal during the correction
                 result.metrics["interrupted_by"] = signals.caught
         if out_dir is not None:
             frontend = resolved_frontend_params(self.odometry, self.system.view_cells)
+            memory = None
+            if self.config.output.save_map:
+                try:
+                    memory = self.system.save_memory()
+                except HippoNavError as err:  # a custom part that cannot be saved: the rest is still written
+                    log.warning("no memory/ written: %s", err)
+                    result.metrics.setdefault("unavailable", {})["memory"] = str(err)
             try:
                 write_results(
-                    result, Path(out_dir), self.config, frontend, self.system.map, shield=signals.shielded
+                    result,
+                    Path(out_dir),
+                    self.config,
+                    frontend,
+                    self.system.map,
+                    shield=signals.shielded,
+                    memory=memory,
                 )
             except ResultsNotWrittenError as err:
                 err.result = result  # type: ignore[attr-defined]
@@ -410,18 +433,23 @@ def run(
     observers: Sequence[Observer] = (),
     dataset_kind: str | None = None,
     dataset_options: dict[str, Any] | None = None,
+    memory_from: str | Path | None = None,
 ) -> RunResult:
     """The `hippo-nav run` command as a function: open the input, run the pipeline, write `out_dir`.
 
     `dataset` is any path `open_dataset` reads (None: the built-in demo loop); `dataset_kind` and
     `dataset_options` go to it. `odometry` replaces the built-in stereo VO (e.g. another system's
     trajectory replayed from a file, see `hippo_nav.vo.replay`); it may also be a callable taking the opened
-    dataset and returning one."""
+    dataset and returning one. `memory_from`: an earlier run's results folder to start inside (`--map`;
+    read and checked before anything else, so a bad one costs nothing)."""
+    memory = read_memory(memory_from) if memory_from is not None else None
     opened = open_input(dataset, sequence, start, stop, stride, progress, dataset_kind, dataset_options)
     note = DatasetExtras.of(opened).note
     if note:
         log.info("%s", note)
     if callable(odometry) and not hasattr(odometry, "process"):
         odometry = odometry(opened)
-    pipeline = Pipeline(opened, config, progress=progress, odometry=odometry, observers=observers)
+    pipeline = Pipeline(
+        opened, config, progress=progress, odometry=odometry, observers=observers, memory=memory
+    )
     return pipeline.run(out_dir, overwrite=overwrite)

@@ -25,24 +25,34 @@ Which descriptor fills the view cells and which proposer closes loops is the con
 (`parts.py`). Everything a run learns that could outlive it — the experience map, the view cells with the
 network states they recall, the closure proposer's keyframes — is `SlamSystem.memory`.
 
+A system can start inside what an earlier run learnt (`memory=read_memory(path)`, docs/memory.md): with
+`resume=True` it continues exactly where that run stopped (the next frames give the same records as if it had
+never stopped); otherwise it starts a new session in the loaded map, lost until a familiar view is confirmed by
+the closure measurement (`ViewCellPnpClosure`, "Relocalisation"): the map then joins the session's own part to
+the loaded one, and the networks are set from the recognised view's stored state (`relocalisation` says when
+and where). `save_memory()` gives what a later run needs.
+
 Nothing depends on wall-clock time (stages are only timed), and OpenCV's RNG is seeded from `config.seed`,
 so a run is deterministic for a given config and input.
 """
 
 from __future__ import annotations
 
+import json
 import logging
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from hippo_nav._core import HippoNavError
 from hippo_nav.closure import ClosureContext, ClosureProposer
 from hippo_nav.closure.proposers import NO_ATTEMPT
 from hippo_nav.datasets.base import StereoCalibration, StereoFrame
 from hippo_nav.engine import SpatialMemory, SpatialReadout
 from hippo_nav.geometry import planar_from_pose, planar_step, se2_between, se2_compose
-from hippo_nav.map import ExperienceMap, MapFrameOutcome, new_experience_map
+from hippo_nav.map import ClosureMode, ExperienceMap, MapFrameOutcome, new_experience_map
+from hippo_nav.memory import SavedMemory, check_compatible
 from hippo_nav.pipeline import parts
 from hippo_nav.pipeline.config import PipelineConfig
 from hippo_nav.pipeline.policies import MotionLimiter, ViewRecall
@@ -90,6 +100,8 @@ class SlamSystem:
         view_cells: ViewDescriptor | None = None,
         closure: ClosureProposer | None = None,
         stride: int = 1,
+        memory: SavedMemory | None = None,
+        resume: bool = False,
     ) -> None:
         import cv2
 
@@ -125,6 +137,14 @@ class SlamSystem:
         self._last_frame_index: int | None = None
         self._last_online_pose = np.zeros(3)
         self._last_code: tuple[float, float] = (0.0, 0.0)
+        self.calibration = calibration
+        # Relocalisation in a loaded map: when (frame, vertex joined onto, odometer since the start) or None.
+        self.relocalisation: dict[str, Any] | None = None
+        self._session_first_cell = 0  # the first view cell this session made
+        self._session_start_m = 0.0
+        self.loaded: dict[str, Any] | None = None  # what was loaded (`memory`), for metrics.json
+        if memory is not None:
+            self._load(memory, resume)
 
     @property
     def view_cells(self) -> ViewDescriptor:
@@ -203,11 +223,15 @@ class SlamSystem:
         note = attempt.note
         if closure is not None:
             note = "accepted" if outcome.loop_closure is not None else str(outcome.rejected_closure)
+            if outcome.relocalized:
+                note = "relocalised"
         elif outcome.rejected_closure is not None:
             note = str(outcome.rejected_closure)
         if self.closure is not None:
             self.closure.after_map(frame, outcome, self.map, worker)
         self.view_recall.anchor(obs, outcome.vertex, outcome.vertex_from_agent)
+        if outcome.relocalized and self.relocalisation is None and obs.cell_id is not None:
+            self._joined(frame, outcome, int(obs.cell_id))
         timer.lap("map")
 
         online_pose, vertex_from_agent = self._online_pose(outcome, step)
@@ -246,10 +270,13 @@ class SlamSystem:
             self.closure.finish()
 
     def correct(self) -> dict[str, Any]:
-        """The configured final correction (`config.correction`); its report (method "none" when disabled
-        or loop-free)."""
+        """The configured final correction (`config.correction`); its report (method "none" when disabled,
+        loop-free, or when a session never joined its loaded map: the loaded part was corrected by its own
+        run and nothing links the session's part to it)."""
         cfg = self.config.correction
         export = self.map.export()
+        if self.map.unjoined_from is not None:
+            return {"method": "none", "reason": "not relocalised in the loaded map"}
         if cfg.method == "none" or not np.asarray(export["link_is_loop"]).any():
             return {"method": "none", "reason": "disabled" if cfg.method == "none" else "no loop closure"}
         self.map_revision += 1
@@ -266,6 +293,149 @@ class SlamSystem:
         return {"method": cfg.method, **report.as_dict()}
 
     # ----------------------------------------------------------------------------------------------
+    def depends_on(self) -> dict[str, Any]:
+        """The settings what this system stores depends on (a memory made with others is refused)."""
+        cfg = json.loads(self.config.model_dump_json(by_alias=True))
+        kind = cfg["parts"]["view_cells"]
+        descriptor = {
+            "words": {k: cfg["view_words"][k] for k in ("max_width_px", "orb_features", "orb_levels")},
+            "template": {
+                k: cfg["views"][k] for k in ("width_px", "height_px", "crop_rows_frac", "patch_size_px")
+            },
+        }.get(kind, {})
+        vocabulary = getattr(self.view_cells, "vocabulary", None)
+        if vocabulary is not None:
+            descriptor["vocabulary_sha256"] = vocabulary.sha256
+        width, height = self.calibration.image_size_px
+        return {
+            "parts": {"view_cells": kind, "closure": cfg["parts"]["closure"]},
+            "view_cells": descriptor,
+            "engine": cfg["engine"],
+            "lesions": cfg["lesions"],
+            "map": cfg["map"],
+            "camera": {
+                "image_size_px": [int(width), int(height)],
+                "fx_px": float(self.calibration.fx),
+                "baseline_m": float(self.calibration.baseline_m),
+            },
+        }
+
+    def save_memory(self) -> SavedMemory:
+        """What a later run needs to start inside this one's map (docs/memory.md); call after `finish`.
+        Raises `HippoNavError` when a part cannot be saved (a custom descriptor or proposer without export)."""
+        export_cells = getattr(self.view_cells, "export_cells", None)
+        if export_cells is None:
+            raise HippoNavError(
+                f"the view cells {type(self.view_cells).__name__} cannot be saved (no export_cells)"
+            )
+        keyframes: dict[str, np.ndarray] = {}
+        if self.closure is not None:
+            export_keyframes = getattr(self.closure, "export_keyframes", None)
+            if export_keyframes is None:
+                raise HippoNavError(f"the closure proposer {type(self.closure).__name__} cannot be saved")
+            keyframes = export_keyframes()
+        views = {f"cells.{k}": v for k, v in export_cells().items()}
+        views.update({f"recall.{k}": v for k, v in self.view_recall.export_state().items()})
+        engine = self.engine.state()
+        state = {
+            "engine.hd": engine["hd"],
+            "engine.place": engine["place"],
+            "engine.aux": np.array(engine["aux"]),
+            **{f"engine.grid{i}": g for i, g in enumerate(engine["grid"])},
+            "vo_pose": self._vo_pose,
+            "last_timestamp_s": np.array(
+                np.nan if self._last_timestamp_s is None else self._last_timestamp_s
+            ),
+            "last_frame_index": np.array(-1 if self._last_frame_index is None else self._last_frame_index),
+            "last_online_pose": np.asarray(self._last_online_pose, np.float64),
+            "last_code": np.asarray(self._last_code, np.float64),
+            "frames": np.array(self.frames),
+            "initial_heading_rad": np.array(self.initial_heading_rad),
+        }
+        info = {
+            "depends_on": self.depends_on(),
+            "config": json.loads(self.config.model_dump_json(by_alias=True)),
+            "counts": {
+                "vertices": len(self.map),
+                "view_cells": len(self.view_cells),
+                "keyframes": 0 if self.closure is None else int(self.closure.stored),
+                "frames": self.frames,
+            },
+        }
+        return SavedMemory(bytes(self.map.to_bytes()), views, keyframes, state, info)
+
+    def _load(self, memory: SavedMemory, resume: bool) -> None:
+        """Take a saved memory (class doc): checked for compatibility, then every part restored."""
+        check_compatible(memory, self.depends_on())
+        if self.config.map.closure != ClosureMode.GEOMETRIC and not resume:
+            raise HippoNavError(
+                'starting inside a saved map needs the geometric closure (map.closure = "Geometric"): '
+                "relocalisation is confirmed by the closure measurement"
+            )
+        if len(self.view_cells) != 0:
+            raise HippoNavError("a memory is loaded into fresh view cells only")
+        restore_cells = getattr(self.view_cells, "restore_cells", None)
+        if restore_cells is None:
+            raise HippoNavError(f"the view cells {type(self.view_cells).__name__} cannot be restored")
+        restore_cells({k[len("cells.") :]: v for k, v in memory.views.items() if k.startswith("cells.")})
+        self.view_recall.restore_state(
+            {k[len("recall.") :]: v for k, v in memory.views.items() if k.startswith("recall.")},
+            resume=resume,
+        )
+        if self.closure is not None and len(memory.keyframes):
+            self.closure.restore_keyframes(memory.keyframes)  # type: ignore[attr-defined]
+        self.map = ExperienceMap.from_bytes(memory.map_bytes)
+        self.loaded = {
+            "folder": str(memory.folder) if memory.folder is not None else None,
+            "vertices": len(self.map),
+            "view_cells": len(self.view_cells),
+            "resumed": bool(resume),
+        }
+        if resume:
+            st = memory.state
+            self.engine.set_state(
+                {
+                    "hd": st["engine.hd"],
+                    "grid": [st[f"engine.grid{i}"] for i in range(len(self.engine.config.grid))],
+                    "place": st["engine.place"],
+                    "aux": str(st["engine.aux"]),
+                }
+            )
+            self._vo_pose = np.array(st["vo_pose"], np.float64)
+            timestamp = float(st["last_timestamp_s"])
+            self._last_timestamp_s = None if np.isnan(timestamp) else timestamp
+            index = int(st["last_frame_index"])
+            self._last_frame_index = None if index < 0 else index
+            self._last_online_pose = np.array(st["last_online_pose"], np.float64)
+            code = np.asarray(st["last_code"], np.float64)
+            self._last_code = (float(code[0]), float(code[1]))
+            self.frames = int(st["frames"])
+            self.initial_heading_rad = float(st["initial_heading_rad"])
+            return
+        self.map.start_session()
+        self._session_first_cell = len(self.view_cells)
+        self._session_start_m = float(self.map.odometer_m)
+
+    def _joined(self, frame: StereoFrame, outcome: MapFrameOutcome, cell: int) -> None:
+        """The session joined its loaded map on this frame: set the networks from the recognised view's
+        stored state, placed where the map now puts the agent; views made before the join stop recalling
+        (their states are in the session's old frame)."""
+        placed = None
+        if outcome.world_from_agent is not None:
+            placed = self.view_recall.placed_state(cell, self.map, outcome.world_from_agent)
+        if placed is not None:
+            self.engine.reset(placed[0], placed[1])
+        self.view_recall.forget_states(range(self._session_first_cell, len(self.view_cells)))
+        self.relocalisation = {
+            "frame": int(frame.index),
+            "frames_lost": int(self.frames),
+            "travelled_m": float(self.map.odometer_m - self._session_start_m),
+            "vertex": None if outcome.loop_closure is None else int(outcome.loop_closure[1]),
+            "view_cell": int(cell),
+            "networks_set": placed is not None,
+        }
+        log.info("frame %s: relocalised in the loaded map (%s)", frame.index, self.relocalisation)
+
     def _data_flags(self, frame: StereoFrame, dt_s: float) -> str:
         """What is odd about this frame's place in the data: sequence frames skipped before it (holes in
         the images), or a time gap. Both are logged once here and flagged in frames.csv."""

@@ -200,6 +200,17 @@ class TemplateViewCells:
         """Every stored template, shape (len, height_px, width_px)."""
         return self._cells.templates()
 
+    def export_cells(self) -> dict[str, np.ndarray]:
+        """Every cell's template, for a memory folder."""
+        return {"templates": np.asarray(self.templates(), np.float32)}
+
+    def restore_cells(self, saved: dict[str, np.ndarray]) -> None:
+        """Store the templates of `export_cells` (into an empty set of cells), with the same ids."""
+        if len(self._cells):
+            raise HippoNavError("restore_cells needs empty view cells")
+        for template in np.asarray(saved["templates"], np.float32):
+            self.add(template)
+
 
 def _as_ids(candidates: ArrayLike | None) -> np.ndarray | None:
     """Candidate cell ids as a 1-D int64 array (any integer sequence or array; None passes through)."""

@@ -45,6 +45,7 @@ from hippo_nav._core import HippoNavError
 from hippo_nav._defaults import ConfigSection
 from hippo_nav.datasets.base import StereoCalibration, StereoFrame
 from hippo_nav.io.errors import read_bytes
+from hippo_nav.memory import split_ragged, stack_ragged
 
 __all__ = [
     "Vocabulary",
@@ -165,6 +166,13 @@ class Vocabulary:
     def levels(self) -> int:
         return int(self._native.levels)
 
+    @property
+    def sha256(self) -> str:
+        """The checksum of the saved vocabulary (what a saved memory's word cells depend on)."""
+        import hashlib
+
+        return hashlib.sha256(bytes(self._native.to_bytes())).hexdigest()
+
 
 _DEFAULT_VOCABULARY = Path(__file__).with_name("orb_words.voc")
 
@@ -249,6 +257,25 @@ class WordViewCells:
     def add(self, view: WordView) -> int:
         """Store a view as a new cell without matching; returns its id."""
         return int(self._cells.add(_pixels(view), view.descriptors))
+
+    def export_cells(self) -> dict[str, np.ndarray]:
+        """Every cell's features, for a memory folder: `count` (cells,), `keypoints_px` (Σ count, 2) float32,
+        `descriptors` (Σ count, 32) uint8, in cell order. A cell's bag of words is made again from them."""
+        features = [self._cells.features(c) for c in range(len(self._cells))]
+        return {
+            "count": np.array([len(k) for k, _ in features], np.int64),
+            "keypoints_px": stack_ragged([k for k, _ in features], 2, np.float32),
+            "descriptors": stack_ragged([d for _, d in features], 32, np.uint8),
+        }
+
+    def restore_cells(self, saved: dict[str, np.ndarray]) -> None:
+        """Store the cells of `export_cells` (into an empty set of cells), with the same ids."""
+        if len(self._cells):
+            raise HippoNavError("restore_cells needs empty view cells")
+        for keypoints, descriptors in split_ragged(
+            saved["count"], saved["keypoints_px"], saved["descriptors"]
+        ):
+            self._cells.add(np.asarray(keypoints, np.float64), np.ascontiguousarray(descriptors, np.uint8))
 
     def observe(
         self,
