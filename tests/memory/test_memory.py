@@ -46,7 +46,7 @@ def steps(demo):
     """The demo's frames with their VO steps, measured once."""
     odometry = StereoOdometry(demo.calibration, config_from_dict(QUIET).vo)
     out = []
-    for frame in Frames(demo, 170):
+    for frame in Frames(demo, 195):
         step = odometry.process(frame)
         out.append((frame, step.camera_prev_from_camera_cur, step.status))
     return out
@@ -71,13 +71,13 @@ def test_a_saved_session_continues_bit_identically(demo, steps, tmp_path):
     that never stopped decides (view cells, closures, map, networks), through the loop's closures."""
     config = config_from_dict(QUIET)
     never_stopped = SlamSystem(demo.calibration, config)
-    reference = _records(never_stopped, steps)
+    reference = _records(never_stopped, steps[:170])
     first = SlamSystem(demo.calibration, config)
     _records(first, steps[:90])
     first.finish()
     write_memory(first.save_memory(), tmp_path / "memory")
     resumed = SlamSystem(demo.calibration, config, memory=read_memory(tmp_path), resume=True)
-    continued = _records(resumed, steps[90:])
+    continued = _records(resumed, steps[90:170])
     _assert_same_records(continued, reference[90:])
     assert any(r.loop_closure is not None for r in continued), "the test must pass through loop closures"
     for key, value in never_stopped.map.export().items():
@@ -91,6 +91,29 @@ def first_lap(demo, tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("first_lap") / "run"
     run(out, config=config_from_dict(QUIET), progress=False, dataset=None, stop=LAP)
     return out
+
+
+def test_a_session_saved_before_it_joined_resumes_and_joins_as_if_it_never_stopped(
+    demo, steps, first_lap, tmp_path
+):
+    """A session inside a loaded map, saved while still lost and resumed, joins at the same frame with the
+    same records as one that never stopped (its unconfirmed hypotheses and where it began are kept)."""
+    config = config_from_dict(QUIET)
+    session = [
+        (frame, np.eye(4) if k == 0 else step, status)
+        for k, (frame, step, status) in enumerate(steps[LAP + 5 :])
+    ]
+    never_stopped = SlamSystem(demo.calibration, config, memory=read_memory(first_lap))
+    reference = _records(never_stopped, session)
+    assert never_stopped.relocalisation is not None and never_stopped.relocalisation["frames_lost"] >= 2
+    lost = SlamSystem(demo.calibration, config, memory=read_memory(first_lap))
+    _records(lost, session[:2])
+    assert lost.map.unjoined_from is not None
+    lost.finish()
+    write_memory(lost.save_memory(), tmp_path / "memory")
+    resumed = SlamSystem(demo.calibration, config, memory=read_memory(tmp_path), resume=True)
+    _assert_same_records(_records(resumed, session[2:]), reference[2:])
+    assert resumed.relocalisation == never_stopped.relocalisation
 
 
 def test_a_later_session_relocalises_on_a_revisit_and_extends_the_map(demo, first_lap, tmp_path):

@@ -247,6 +247,8 @@ class ViewCellPnpClosure:
             "descriptors": stack_ragged([k.descriptors for k in frames], 32, np.uint8),
             "points_m": stack_ragged([k.points_m for k in frames], 3, np.float32),
             "closure_odometer_m": np.array(self._closure_odometer_m),
+            # Relocalisation hypotheses not yet confirmed (odometer m, x, y, yaw).
+            "hypotheses": np.array([[o, *h] for o, h in self._hypotheses], np.float64).reshape(-1, 4),
         }
 
     def restore_keyframes(self, saved: dict[str, np.ndarray]) -> None:
@@ -264,6 +266,7 @@ class ViewCellPnpClosure:
         }
         self._pending = {}
         self._closure_odometer_m = float(saved["closure_odometer_m"])
+        self._hypotheses = [(float(h[0]), np.array(h[1:], np.float64)) for h in saved["hypotheses"]]
 
     def after_map(
         self, frame: StereoFrame, outcome: MapFrameOutcome, experience_map: ExperienceMap, worker: Worker

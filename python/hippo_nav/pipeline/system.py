@@ -351,6 +351,9 @@ class SlamSystem:
             "last_code": np.asarray(self._last_code, np.float64),
             "frames": np.array(self.frames),
             "initial_heading_rad": np.array(self.initial_heading_rad),
+            # A session saved before it joined its loaded map: where it began, for when it joins.
+            "session_first_cell": np.array(self._session_first_cell),
+            "session_start_m": np.array(self._session_start_m),
         }
         info = {
             "depends_on": self.depends_on(),
@@ -411,6 +414,8 @@ class SlamSystem:
             self._last_code = (float(code[0]), float(code[1]))
             self.frames = int(st["frames"])
             self.initial_heading_rad = float(st["initial_heading_rad"])
+            self._session_first_cell = int(st["session_first_cell"])
+            self._session_start_m = float(st["session_start_m"])
             return
         self.map.start_session()
         self._session_first_cell = len(self.view_cells)
