@@ -42,6 +42,18 @@ def rust_default(section: str, *path: str | int) -> Any:
     return value
 
 
+def dotted(data: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """A nested mapping with dotted keys, as the config is addressed on the command line and in messages:
+    `{"views": {"novelty_threshold": 0.4}}` → `{"views.novelty_threshold": 0.4}`."""
+    flat: dict[str, Any] = {}
+    for key, value in data.items():
+        if isinstance(value, dict):
+            flat.update(dotted(value, f"{prefix}{key}."))
+        else:
+            flat[f"{prefix}{key}"] = value
+    return flat
+
+
 def _wrong_kind(annotation: Any, value: Any) -> str | None:
     """Why `value` is not of the kind `annotation` asks for (a bool, int or float, or a list, tuple or
     optional of them), or None. Only what pydantic's lax mode would silently convert is caught here:

@@ -32,6 +32,7 @@ from typing import Any
 import numpy as np
 
 from hippo_nav._core import HippoNavError
+from hippo_nav._defaults import dotted
 from hippo_nav.io import atomic
 from hippo_nav.io.errors import read_bytes
 
@@ -197,15 +198,6 @@ def read_memory(path: str | Path) -> SavedMemory:
     )
 
 
-def _flatten(prefix: str, value: Any) -> dict[str, Any]:
-    if isinstance(value, dict):
-        out: dict[str, Any] = {}
-        for key, item in value.items():
-            out.update(_flatten(f"{prefix}.{key}" if prefix else str(key), item))
-        return out
-    return {prefix: value}
-
-
 def _same(a: Any, b: Any) -> bool:
     if isinstance(a, float) or isinstance(b, float):
         try:
@@ -219,8 +211,8 @@ def check_compatible(memory: SavedMemory, now: dict[str, Any]) -> None:
     """Refuse a memory whose stored parts this run could not use: `now` holds this run's values of the
     settings in `memory.info["depends_on"]` (same flattened names) and its camera; the first difference is
     an error naming the setting, both values and the fix."""
-    saved = _flatten("", memory.info.get("depends_on", {}))
-    current = _flatten("", now)
+    saved = dotted(memory.info.get("depends_on", {}))
+    current = dotted(now)
     for name in sorted(set(saved) | set(current)):
         a, b = saved.get(name, "<absent>"), current.get(name, "<absent>")
         if not _same(a, b):

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from hippo_nav._core import HippoNavError
+from hippo_nav._defaults import dotted
 from hippo_nav.sweep.manifest import MANIFEST, RUNS_DIR, read_manifest
 
 LESION_MODULES = ("ventral", "intermediate", "dorsal")
@@ -184,24 +185,14 @@ def _plain_axes(folder: Path, metrics: dict[str, Any]) -> dict[str, Any]:
     }
     config = _read_json(folder / "config.json")
     if config is not None:
-        defaults = _flat(resolved_config_dict(PipelineConfig()))
-        for key, value in _flat(config).items():
+        defaults = dotted(resolved_config_dict(PipelineConfig()))
+        for key, value in dotted(config).items():
             # The seed and the lesions are axes of their own (vo.seed follows the seed).
             own_axis = key in ("seed", "vo.seed") or key.startswith("lesions.")
             if key in defaults and value != defaults[key] and not own_axis:
                 axes[key] = value
     axes["seed"] = metrics.get("seed")
     return axes
-
-
-def _flat(data: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for key, value in data.items():
-        if isinstance(value, dict):
-            out.update(_flat(value, f"{prefix}{key}."))
-        else:
-            out[f"{prefix}{key}"] = value
-    return out
 
 
 def bump_widths(path: Path) -> dict[str, float | None]:

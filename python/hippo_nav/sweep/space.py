@@ -39,6 +39,7 @@ from pathlib import Path
 from typing import Any
 
 from hippo_nav._core import HippoNavError
+from hippo_nav._defaults import dotted
 from hippo_nav.io import read_text
 from hippo_nav.pipeline.config import PipelineConfig, config_from_dict, load_config, resolved_config_dict
 
@@ -422,7 +423,7 @@ def _block_from(table: dict[str, Any], where: str, defaults: Block, odometry_fla
     if "set" in table:
         if not isinstance(table["set"], dict):
             raise HippoNavError(f'{where}: set is a table of "key" = [values]')
-        for key, values in _flat(table["set"]).items():
+        for key, values in dotted(table["set"]).items():
             overrides[_checked_key(key, f"{where}, set")] = _as_list(values)
     seeds = parse_seeds(table["seeds"]) if "seeds" in table else defaults.seeds
     lesions = (
@@ -506,17 +507,6 @@ def build_space(
         blocks.append(_block_from(command_line, "command line", block, odometry_flags))
     out = data.get("out")
     return SweepSpace(dataset_input, base, base_file, blocks, None if out is None else str(out))
-
-
-def _flat(table: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    """`{"views": {"novelty_threshold": [0.4]}}` (a TOML `[set.views]` table) → `{"views.novelty_threshold": [0.4]}`."""
-    flat: dict[str, Any] = {}
-    for key, value in table.items():
-        if isinstance(value, dict):
-            flat.update(_flat(value, f"{prefix}{key}."))
-        else:
-            flat[f"{prefix}{key}"] = value
-    return flat
 
 
 def _space_tables(data: dict[str, Any]) -> list[dict[str, Any]]:
