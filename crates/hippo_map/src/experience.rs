@@ -832,19 +832,7 @@ impl ExperienceMap {
             let claimed = world_from_target.compose(&closure.agent_from_target.inverse());
             match self.gate(&agent, closure.target, &claimed) {
                 Some(reason) => outcome.rejected_closure = Some(reason),
-                None => {
-                    let here = self.advance_to_new_vertex(current, input)?;
-                    outcome.created = true;
-                    let link = Link {
-                        from: here,
-                        to: closure.target,
-                        from_from_to: closure.agent_from_target,
-                        elapsed_s: 0.0,
-                        kind: EdgeKind::Loop,
-                        information: closure.information,
-                    };
-                    return self.add_loop_link(link, outcome);
-                }
+                None => return self.close_at_agent(current, &closure, input, outcome),
             }
         }
         let here = &self.vertices[current];
@@ -855,6 +843,35 @@ impl ExperienceMap {
             outcome.created = true;
         }
         Ok(false)
+    }
+
+    /// A measured closure taken: a vertex at the agent, joined to the target by a loop link carrying the
+    /// measurement, then the online correction (see [`Self::add_loop_link`]). Returns whether it was added.
+    fn close_at_agent(
+        &mut self,
+        current: usize,
+        closure: &LoopMeasurement,
+        input: &FrameInput,
+        outcome: &mut FrameOutcome,
+    ) -> Result<bool> {
+        let here = self.advance_to_new_vertex(current, input)?;
+        outcome.created = true;
+        let link = Link {
+            from: here,
+            to: closure.target,
+            from_from_to: closure.agent_from_target,
+            elapsed_s: 0.0,
+            kind: EdgeKind::Loop,
+            information: closure.information,
+        };
+        self.add_loop_link(link, outcome)
+    }
+
+    /// Move vertices `first..` rigidly: `new_world_from_vertex = moved ∘ world_from_vertex`.
+    fn move_vertices_from(&mut self, first: usize, moved: &Pose2) {
+        for v in &mut self.vertices[first..] {
+            v.world_from_vertex = moved.compose(&v.world_from_vertex);
+        }
     }
 
     /// The join of an unjoined session ([`Self::start_session`]) by a closure onto an earlier vertex: the
@@ -876,28 +893,13 @@ impl ExperienceMap {
             .world_from_vertex
             .compose(&closure.agent_from_target.inverse());
         let map_from_session = claimed.compose(&agent.inverse());
-        for v in &mut self.vertices[first..] {
-            v.world_from_vertex = map_from_session.compose(&v.world_from_vertex);
-        }
+        self.move_vertices_from(first, &map_from_session);
         self.unjoined_from = None;
-        let here = self.advance_to_new_vertex(current, input)?;
-        outcome.created = true;
-        let link = Link {
-            from: here,
-            to: closure.target,
-            from_from_to: closure.agent_from_target,
-            elapsed_s: 0.0,
-            kind: EdgeKind::Loop,
-            information: closure.information,
-        };
-        if self.add_loop_link(link, outcome)? {
+        if self.close_at_agent(current, &closure, input, outcome)? {
             outcome.relocalized = true;
             return Ok(true);
         }
-        let session_from_map = map_from_session.inverse();
-        for v in &mut self.vertices[first..] {
-            v.world_from_vertex = session_from_map.compose(&v.world_from_vertex);
-        }
+        self.move_vertices_from(first, &map_from_session.inverse());
         self.unjoined_from = Some(first);
         Ok(false)
     }

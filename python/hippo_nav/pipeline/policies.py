@@ -163,21 +163,32 @@ class ViewRecall:
         if measured is None or experience_map is None or not self._revisit(obs):
             return None, 0.0
         cell = int(obs.cell_id)  # type: ignore[arg-type]
-        anchor, offset = self._cell_vertex.get(cell), self._cell_offset.get(cell)
-        if anchor is None or offset is None:
-            return None, 0.0
         target, agent_from_target = measured
         world_from_agent = se2_compose(
             np.array(experience_map.vertex_pose(target)),
             se2_between(np.array(agent_from_target), np.zeros(3)),
         )
+        moved = self._moved(cell, experience_map, world_from_agent)
+        if moved is None or moved[1] > self.injection_config.max_placement_m:
+            return None, 0.0
+        _, _, yaw_rad, shift_rad = moved
+        strength = (
+            self.injection_config.initial_strength * self.injection_config.decay_per_frame**self._active_run
+        )
+        return self._recalled(cell, strength, yaw_rad, shift_rad, always_shift=True)
+
+    def _moved(
+        self, cell: int, experience_map: ExperienceMap, world_from_agent: np.ndarray
+    ) -> tuple[CompactView, float, float, tuple[float, float]] | None:
+        """What `cell` stored, and how far the agent at `world_from_agent` (map frame) is from where the cell
+        was made: (stored state, distance m, turn rad, the bumps' shift on the torus (rad)); None when the
+        cell stores nothing or has no anchor."""
+        stored, anchor = self.stored.get(cell), self._cell_vertex.get(cell)
+        offset = self._cell_offset.get(cell)
+        if stored is None or anchor is None or offset is None:
+            return None
         world_from_made = se2_compose(np.array(experience_map.vertex_pose(anchor)), np.array(offset))
         forward_m, left_m, yaw_rad = (float(v) for v in se2_between(world_from_made, world_from_agent))
-        if np.hypot(forward_m, left_m) > self.injection_config.max_placement_m:
-            return None, 0.0
-        stored = self.stored.get(cell)
-        if stored is None:
-            return None, 0.0
         # The stored heading code ψ is the engine-frame direction the agent faced when the view was made: a
         # displacement (forward, left) from there is ψ-rotated into the engine frame, and moves every
         # module's bumps by 2π·d/P on the shared torus.
@@ -185,10 +196,7 @@ class ViewRecall:
         dx = np.cos(psi) * forward_m - np.sin(psi) * left_m
         dy = np.sin(psi) * forward_m + np.cos(psi) * left_m
         scale = 2.0 * np.pi / self.torus_period_m
-        strength = (
-            self.injection_config.initial_strength * self.injection_config.decay_per_frame**self._active_run
-        )
-        return self._recalled(cell, strength, yaw_rad, (scale * dx, scale * dy), always_shift=True)
+        return stored, float(np.hypot(forward_m, left_m)), yaw_rad, (float(scale * dx), float(scale * dy))
 
     def _recalled(
         self,
@@ -221,24 +229,17 @@ class ViewRecall:
         frame), from what `cell` stored where it was made, moved as a measured injection moves it (None: the
         cell stores nothing, or every module is lesioned). Used to set the networks when a session joins a
         loaded map (docs/memory.md)."""
-        stored, anchor = self.stored.get(cell), self._cell_vertex.get(cell)
-        offset = self._cell_offset.get(cell)
-        if stored is None or anchor is None or offset is None:
+        moved = self._moved(cell, experience_map, np.array(world_from_agent))
+        if moved is None:
             return None
+        stored, _, yaw_rad, (dx, dy) = moved
         modules = [m for m in stored.modules if m is not None]
         if not modules:
             return None
-        world_from_made = se2_compose(np.array(experience_map.vertex_pose(anchor)), np.array(offset))
-        forward_m, left_m, yaw_rad = (
-            float(v) for v in se2_between(world_from_made, np.array(world_from_agent))
-        )
-        psi = stored.hd.heading_rad
-        scale = 2.0 * np.pi / self.torus_period_m
-        dx = scale * (np.cos(psi) * forward_m - np.sin(psi) * left_m)
-        dy = scale * (np.sin(psi) * forward_m + np.cos(psi) * left_m)
         # The coarsest stored module fixes the torus phase; finer ones agree with it modulo their period.
         phase = modules[0].phase_rad
-        return psi + yaw_rad, ((phase[0] + dx) % (2 * np.pi), (phase[1] + dy) % (2 * np.pi))
+        heading = stored.hd.heading_rad + yaw_rad
+        return heading, ((phase[0] + dx) % (2 * np.pi), (phase[1] + dy) % (2 * np.pi))
 
     def forget_states(self, cells: Sequence[int]) -> None:
         """Drop what `cells` recall (their stored states were made in a frame the networks have left)."""
