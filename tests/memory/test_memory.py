@@ -66,6 +66,7 @@ def _assert_same_records(a: list, b: list) -> None:
             )
 
 
+@pytest.mark.slow
 def test_a_saved_session_continues_bit_identically(demo, steps, tmp_path):
     """Stopped after frame 90, saved, loaded, and given the same frames, a session decides exactly what one
     that never stopped decides (view cells, closures, map, networks), through the loop's closures."""
@@ -93,6 +94,7 @@ def first_lap(demo, tmp_path_factory) -> Path:
     return out
 
 
+@pytest.mark.slow
 def test_a_session_saved_before_it_joined_resumes_and_joins_as_if_it_never_stopped(
     demo, steps, first_lap, tmp_path
 ):
@@ -116,6 +118,7 @@ def test_a_session_saved_before_it_joined_resumes_and_joins_as_if_it_never_stopp
     assert resumed.relocalisation == never_stopped.relocalisation
 
 
+@pytest.mark.slow
 def test_a_later_session_relocalises_on_a_revisit_and_extends_the_map(demo, first_lap, tmp_path):
     """Started without its pose on the second lap, a session is lost until a familiar view is confirmed, then
     stands where the truth puts it in the first run's map, and the map holds both sessions."""
@@ -149,6 +152,7 @@ def test_a_later_session_relocalises_on_a_revisit_and_extends_the_map(demo, firs
     assert again.info["counts"]["vertices"] == metrics["vertices"]
 
 
+@pytest.mark.slow
 def test_an_unseen_street_never_relocalises(first_lap, tmp_path):
     """A session on a street the first run never saw stays unjoined: no relocalisation, no closure onto the
     loaded map, and its own map is written whole."""
