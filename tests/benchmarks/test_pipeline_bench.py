@@ -91,3 +91,13 @@ def test_pipeline_real_kitti_06_windowed_vo(benchmark, shared_data):
     data = KittiOdometry(shared_data / "kitti_odometry", "06")
     data.name = "KITTI 06 frames 0-50, windowed VO (baseline: frame to frame)"
     _bench(benchmark, data, {}, {"vo": {"window_keyframes": 0}})
+
+
+@pytest.mark.data
+def test_pipeline_real_kitti_06_disparity_self_calibration(benchmark, shared_data):
+    """The current pipeline (the VO estimating its disparity offset on every tracked frame) against the
+    same pipeline with the offset fixed, in the same rounds: what the self-calibration costs the system."""
+    benchmark.group = "pipeline by VO"
+    data = KittiOdometry(shared_data / "kitti_odometry", "06")
+    data.name = "KITTI 06 frames 0-50, disparity self-calibration (baseline: offset fixed)"
+    _bench(benchmark, data, {}, {"vo": {"disparity_self_calibration": False}})

@@ -332,11 +332,11 @@ def test_a_failing_keyframe_extraction_costs_closures_not_the_run(demo, tmp_path
 
     real, calls = KeyframeExtractor.__call__, []
 
-    def fails_on_the_third(self, left, right):
+    def fails_on_the_third(self, left, right, disparity_offset_px=None):
         calls.append(1)
         if len(calls) == 3:
             raise HippoNavError("simulated: keyframe extraction failed")
-        return real(self, left, right)
+        return real(self, left, right, disparity_offset_px)
 
     config = config_from_dict({**QUIET, "overlap_front_end": overlap})
     pipeline = Pipeline(Frames(demo, 30), config)

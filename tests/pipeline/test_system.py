@@ -130,7 +130,8 @@ def test_the_end_of_a_run_is_a_pure_function_of_record_and_map(reference):
     facts = RunFacts(
         frames_requested=N, note="", seed=0, lesioned=[False, False, False], closure_mode="Geometric",
         min_loop_separation_m=50.0, view_cells=reference.metrics["view_cells"], keyframes=0, keyframe_bytes=0,
-        data_warnings=[], stereo_bias_px=None, missing_frames=0, frames_without_timestamp=0,
+        data_warnings=[], stereo_bias_px=None, disparity_offset_px=None, missing_frames=0,
+        frames_without_timestamp=0,
     )  # fmt: skip
     metrics = evaluate(again, facts, {"method": "none"}, None)
     assert metrics["frames"] == N and metrics["loop_closures"] == reference.metrics["loop_closures"]

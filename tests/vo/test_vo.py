@@ -186,7 +186,7 @@ def test_real_kitti_01_highway_scale_follows_the_right_camera_baseline(shared_da
     gt = _rebased(data.ground_truth())
     # The frame-to-frame steps: their scale is the stereo pair's alone (the window adds temporal parallax,
     # which pulls a biased pair's scale part of the way back: 1.118 here).
-    est, _ = run_odometry(data, VoParams(window_keyframes=0))
+    est, _ = run_odometry(data, VoParams(window_keyframes=0, disparity_self_calibration=False))
     true_steps = np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1)
     ratio = np.median(np.linalg.norm(np.diff(est[:, :3, 3], axis=0), axis=1) / true_steps)
     baseline_cam3_m = -data.calibration.P3[0, 3] / data.calibration.P3[0, 0]
@@ -195,7 +195,9 @@ def test_real_kitti_01_highway_scale_follows_the_right_camera_baseline(shared_da
     p1 = data.calibration.P1.copy()
     p1[0, 3] = -data.calibration.fx * baseline_cam3_m
     data.calibration = dataclasses.replace(data.calibration, P1=p1)
-    est, steps = run_odometry(data)
+    # Without the self-calibration: it reads the depth-dependent error the baseline does not explain
+    # (tests/vo/test_disparity.py) and would correct the scale a second time.
+    est, steps = run_odometry(data, VoParams(disparity_self_calibration=False))
     errors, yaw_rms, speed_rms = _evaluate("KITTI 01 (camera-3 baseline)", data, est, steps, SHORT_LENGTHS_M)
     assert errors["segments"] > 100
     assert errors["t_rel_percent"] <= 2.5
@@ -215,8 +217,8 @@ def _right_shifted(frame: StereoFrame, shift_px: float) -> StereoFrame:
 
 def test_a_shifted_right_image_is_reported_and_the_disparity_offset_corrects_it(demo, caplog):
     """A right image shifted by a pixel against its calibration (what KITTI 01's shared frames show)
-    makes depths wrong in a way no rigid step explains: the VO warns once, and `disparity_offset_px`
-    puts the pixel back."""
+    makes depths wrong in a way no rigid step explains: with the self-calibration off (tests/vo/
+    test_disparity.py has it on) the VO warns once, and `disparity_offset_px` puts the pixel back."""
     gt = _rebased(demo.ground_truth())
     frames = [demo[i] for i in range(len(demo))]
 
@@ -228,13 +230,14 @@ def test_a_shifted_right_image_is_reported_and_the_disparity_offset_corrects_it(
         errors = relative_errors_kitti(gt, np.stack(poses), lengths=(100.0, 200.0), step=1)
         return vo, errors["t_rel_percent"]
 
-    consistent, t_rel_consistent = run(VoParams(), 0.0)
+    fixed = VoParams(disparity_self_calibration=False)
+    consistent, t_rel_consistent = run(fixed, 0.0)
     assert consistent.warnings == [] and abs(consistent.stereo_bias_px) < 0.03
     with caplog.at_level("WARNING", logger="hippo_nav.vo"):
-        shifted, t_rel_shifted = run(VoParams(), 1.0)
+        shifted, t_rel_shifted = run(fixed, 1.0)
     assert len(shifted.warnings) == 1 and "disparity_offset_px" in shifted.warnings[0]
     assert shifted.stereo_bias_px < -0.03 and "looks biased" in caplog.text
-    corrected, t_rel_corrected = run(VoParams(disparity_offset_px=1.0), 1.0)
+    corrected, t_rel_corrected = run(VoParams(disparity_offset_px=1.0, disparity_self_calibration=False), 1.0)
     assert corrected.warnings == []
     assert t_rel_shifted > 2 * t_rel_consistent
     assert t_rel_corrected < 1.5 * t_rel_consistent + 0.2
@@ -242,16 +245,18 @@ def test_a_shifted_right_image_is_reported_and_the_disparity_offset_corrects_it(
 
 @pytest.mark.data
 def test_real_kitti_01_disparity_offset_and_the_bias_warning(shared_data):
-    """KITTI 01's shared frames with calib.txt as given: the VO warns that the stereo pair looks biased
-    (t_rel ~15 %); `disparity_offset_px = 1.5` brings t_rel to ~1.7 % (the camera-3 baseline of the test
-    above to ~2.3 %)."""
+    """KITTI 01's shared frames with calib.txt as given and the self-calibration off: the VO warns that
+    the stereo pair looks biased (t_rel ~15 %); `disparity_offset_px = 1.5` brings t_rel to ~2 % (the
+    camera-3 baseline of the test above to ~2.3 %)."""
     data = KittiOdometry(shared_data / "kitti_odometry", "01")
     frames = [data[i] for i in range(len(data))]
     gt = _rebased(data.ground_truth())
     t_rel = {}
     for offset_px in (0.0, 1.5):
         vo, pose, poses = (
-            StereoOdometry(data.calibration, VoParams(disparity_offset_px=offset_px)),
+            StereoOdometry(
+                data.calibration, VoParams(disparity_offset_px=offset_px, disparity_self_calibration=False)
+            ),
             np.eye(4),
             [],
         )

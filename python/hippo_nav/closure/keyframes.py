@@ -169,21 +169,26 @@ class KeyframeExtractor:
             "criteria": (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 30, 0.01),
         }
 
-    def __call__(self, left: np.ndarray, right: np.ndarray) -> Keyframe:
+    def __call__(
+        self, left: np.ndarray, right: np.ndarray, disparity_offset_px: float | None = None
+    ) -> Keyframe:
+        """The keyframe of a stereo pair; `disparity_offset_px`: the correction the odometry applies now
+        (its self-calibration moves it), None: the one this extractor was made with."""
         cfg = self.config
+        offset_px = self.disparity_offset_px if disparity_offset_px is None else float(disparity_offset_px)
         keypoints, descriptors = self._orb.detectAndCompute(left, None)
         if descriptors is None or len(keypoints) == 0:
             return _empty_keyframe()
         pixels = np.array([k.pt for k in keypoints], dtype=np.float32)
         response = np.array([k.response for k in keypoints], dtype=np.float32)
         guess = pixels.copy()
-        guess[:, 0] -= self.fx * self.baseline_m / cfg.stereo_guess_depth_m - self.disparity_offset_px
+        guess[:, 0] -= self.fx * self.baseline_m / cfg.stereo_guess_depth_m - offset_px
         flags = cv2.OPTFLOW_USE_INITIAL_FLOW
         in_right, ok, _ = cv2.calcOpticalFlowPyrLK(left, right, pixels, guess, flags=flags, **self._klt)
         back, ok_back, _ = cv2.calcOpticalFlowPyrLK(
             right, left, in_right, pixels.copy(), flags=flags, **self._klt
         )
-        disparity = pixels[:, 0] - in_right[:, 0] + self.disparity_offset_px
+        disparity = pixels[:, 0] - in_right[:, 0] + offset_px
         keep = (
             (ok.ravel() == 1)
             & (ok_back.ravel() == 1)

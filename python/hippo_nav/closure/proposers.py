@@ -61,6 +61,9 @@ class ClosureContext:
         int | None
     )  # the vertex where this frame's familiar view was first seen (None: not familiar)
     experience_map: ExperienceMap
+    # The stereo correction the odometry applies now (its self-calibration moves it): a keyframe's depths
+    # come from the same pair. None: the proposer's own (the configured `vo.disparity_offset_px`).
+    disparity_offset_px: float | None = None
 
 
 @dataclass(frozen=True)
@@ -127,6 +130,7 @@ class ViewCellPnpClosure:
         self._pending: dict[int, Future[Keyframe]] = {}
         self._made: Keyframe | None = None  # the current frame's keyframe, when a closure attempt made one
         self._proposed = False  # whether the current frame proposed a closure
+        self._offset_px: float | None = None  # the current frame's stereo correction (ClosureContext)
         self._closure_odometer_m = -np.inf
         # Relocalisation hypotheses: (odometer m, the session's pose in the loaded map (x, y, yaw)).
         self._hypotheses: list[tuple[float, np.ndarray]] = []
@@ -142,6 +146,7 @@ class ViewCellPnpClosure:
     def propose(self, context: ClosureContext) -> ClosureAttempt:
         """The first candidate vertex whose keyframe the current frame measures (module doc)."""
         self._made, self._proposed = None, False
+        self._offset_px = context.disparity_offset_px
         cfg = self.config
         experience_map, frame = context.experience_map, context.frame
         if experience_map.unjoined_from is not None:
@@ -157,7 +162,7 @@ class ViewCellPnpClosure:
         if not candidates:
             return ClosureAttempt(None, "no_candidate")
         try:
-            current = self.extract(frame.left, frame.right)
+            current = self.extract(frame.left, frame.right, self._offset_px)
         except Exception as err:  # noqa: BLE001 - a frame without a keyframe closes no loop; the run goes on
             log.warning("frame %s: no stereo keyframe (%s); no loop closure attempted", frame.index, err)
             return ClosureAttempt(None, "no_current_keyframe")
@@ -189,7 +194,7 @@ class ViewCellPnpClosure:
         reach = cfg.anchor_neighbours
         nearby = [v for v in range(anchor - reach, anchor + reach + 1) if 0 <= v < first_session_vertex]
         try:
-            current = self.extract(context.frame.left, context.frame.right)
+            current = self.extract(context.frame.left, context.frame.right, self._offset_px)
         except Exception as err:  # noqa: BLE001 - a frame without a keyframe relocalises nothing
             log.warning(
                 "frame %s: no stereo keyframe (%s); no relocalisation attempted", context.frame.index, err
@@ -282,7 +287,7 @@ class ViewCellPnpClosure:
         if self._made is not None:
             self.keyframes[vertex] = self._made
             return
-        self._pending[vertex] = worker.submit(self.extract, frame.left, frame.right)
+        self._pending[vertex] = worker.submit(self.extract, frame.left, frame.right, self._offset_px)
         if self._pending[vertex].done():  # done at once (inline): take it (or report its failure) now
             self._keyframe(vertex)
 

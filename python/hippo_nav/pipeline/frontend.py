@@ -6,7 +6,8 @@ The odometry plug point: anything with `process(frame) -> step` stands in for th
 identity on the first frame) and `status` ("ok" when the step was measured and trusted, "first" on the
 first frame; anything else is flagged). Optional, read by `OdometryExtras.of`: `tracked_pixels` (the
 left-image features it tracks, drawn by viewers), `warnings` and `stereo_bias_px` (reported in
-`metrics.json`), `params` (a pydantic model written into `config.json`).
+`metrics.json`), `disparity_offset_px` (the stereo correction in use after each frame: the closure's
+keyframes apply it too), `params` (a pydantic model written into `config.json`).
 
 `OdometryGuard` is the odometry's failure policy: an exception or a non-finite step reuses the previous
 step (constant-velocity prior) and flags the frame "failed".
@@ -87,12 +88,19 @@ class OdometryExtras:
 
     warnings: list[str] = field(default_factory=list)
     stereo_bias_px: float | None = None
+    disparity_offset_px: float | None = None
 
     @classmethod
     def of(cls, odometry: object) -> OdometryExtras:
         bias = getattr(odometry, "stereo_bias_px", None)
         bias_px = None if bias is None or not np.isfinite(bias) else float(bias)
-        return cls(list(getattr(odometry, "warnings", [])), bias_px)
+        return cls(list(getattr(odometry, "warnings", [])), bias_px, disparity_offset_px(odometry))
+
+
+def disparity_offset_px(odometry: object) -> float | None:
+    """The stereo correction `odometry` applies now (px), or None when it has none (a replayed odometry)."""
+    offset = getattr(odometry, "disparity_offset_px", None)
+    return None if offset is None or not np.isfinite(offset) else float(offset)
 
 
 class OdometryGuard:
@@ -126,6 +134,7 @@ class FrontResult:
     step: np.ndarray  # camera_prev_from_camera_cur (after the failure policy)
     vo_status: str
     features_px: np.ndarray | None  # the odometry's tracked features in this frame (None: it has none)
+    disparity_offset_px: float | None  # the odometry's stereo correction after this frame (None: none)
     view_description: Any  # the view descriptor's description, when made ahead (None: the system makes it)
     load_s: float
     vo_s: float
@@ -206,8 +215,9 @@ class FrontEnd:
         vo_s = time.perf_counter() - clock
         # Read now: with the front end a frame ahead, the odometry moves on before the back end is done.
         features_px = tracked_pixels(self.odometry.odometry)
+        offset_px = disparity_offset_px(self.odometry.odometry)
         description = self._describe(frame) if self._describe is not None else None
-        return FrontResult(frame, step, vo_status, features_px, description, load_s, vo_s)
+        return FrontResult(frame, step, vo_status, features_px, offset_px, description, load_s, vo_s)
 
     def _loaded(self, i: int) -> Future[tuple[StereoFrame, float]]:
         """Frame `i` being loaded (asked for now if it was not yet), and frame i+1 asked for."""

@@ -300,6 +300,7 @@ class RunFacts:
     keyframe_bytes: int
     data_warnings: list[str]  # the dataset's and the odometry's
     stereo_bias_px: float | None  # the odometry's running disparity residual, if it measures one
+    disparity_offset_px: float | None  # the stereo correction the odometry applied at the end, if any
     missing_frames: int
     frames_without_timestamp: int
 
@@ -349,6 +350,7 @@ def evaluate(
         "data": {
             "warnings": list(facts.data_warnings),
             "stereo_bias_px": facts.stereo_bias_px,
+            "disparity_offset_px": facts.disparity_offset_px,
             "missing_frames": facts.missing_frames,
             "frames_without_timestamp": facts.frames_without_timestamp,
             "frames_after_skipped_frames": sum("skipped_frames" in f for f in record.column("data_flags")),

@@ -203,6 +203,7 @@ class Pipeline:
             front.step,
             front.vo_status,
             view_description=front.view_description,
+            disparity_offset_px=front.disparity_offset_px,
             worker=front_end.worker,
             timer=timer,
         )
@@ -243,6 +244,7 @@ class Pipeline:
             keyframe_bytes=0 if closure is None else closure.stored_bytes,
             data_warnings=self.extras.warnings + odometry.warnings,
             stereo_bias_px=odometry.stereo_bias_px,
+            disparity_offset_px=odometry.disparity_offset_px,
             missing_frames=len(self.extras.missing_frames),
             frames_without_timestamp=self.extras.frames_without_timestamp,
         )

@@ -162,12 +162,15 @@ class SlamSystem:
         vo_status: str = "ok",
         *,
         view_description: Any = None,
+        disparity_offset_px: float | None = None,
         worker: Worker = INLINE,
         timer: StageTimer | None = None,
     ) -> SystemStep:
         """Process one frame whose odometry step is `camera_prev_from_camera_cur` (4 × 4 SE(3), identity on
         the first frame; `vo_status` as the odometry reported it). `view_description`: the view descriptor's
-        `describe(frame)` when the front end made it ahead (None: made here). Slow work whose result is
+        `describe(frame)` when the front end made it ahead (None: made here). `disparity_offset_px`: the
+        odometry's stereo correction after this frame, which the closure's keyframes apply too (None: the
+        configured `vo.disparity_offset_px`). Slow work whose result is
         needed only later goes to `worker`; `timer` is told where each stage ends."""
         timer = timer if timer is not None else StageTimer()
         step = np.asarray(camera_prev_from_camera_cur, dtype=np.float64)
@@ -196,7 +199,9 @@ class SlamSystem:
                 if obs.status == "familiar" and cell is not None
                 else None
             )
-            attempt = self.closure.propose(ClosureContext(frame, planar_step_map, anchor, self.map))
+            attempt = self.closure.propose(
+                ClosureContext(frame, planar_step_map, anchor, self.map, disparity_offset_px)
+            )
         timer.lap("closure")
 
         # 4. Spatial memory integrates the motion, with what a familiar view recalls; a new view cell then

@@ -53,8 +53,14 @@ from pydantic import ConfigDict, Field
 from hippo_nav._core import HippoNavError, _SlidingWindow
 from hippo_nav._defaults import ConfigSection
 from hippo_nav.geometry import planar_step
+from hippo_nav.vo.disparity import DisparityCalibration, frame_offset_px
 
 log = logging.getLogger("hippo_nav.vo")
+
+# A frame whose fit moves the offset by more than this is not measuring it (a bad set of tracks).
+_MAX_OFFSET_STEP_PX = 3.0
+# The self-calibration warns once when the offset it applies is this far from the configured one.
+_WARN_OFFSET_PX = 0.3
 
 STATUSES = ("first", "ok", "low_texture", "rejected")
 """`VoStep.status`: first frame (identity); a measured step; too few features, tracks or inliers (prior
@@ -129,8 +135,33 @@ class VoParams(ConfigSection):
         ge=-5.0,
         le=5.0,
         description="added to every measured disparity: corrects a stereo pair whose right image is "
-        "shifted against its calibration (KITTI 01's shared frames need about +1 px); see "
-        "`stereo_bias_px` and the warning it raises",
+        "shifted against its calibration (KITTI 01's shared frames need about +1 px); where the "
+        "self-calibration starts (`disparity_self_calibration`), else fixed (then see `stereo_bias_px` and "
+        "the warning it raises)",
+    )
+    disparity_self_calibration: bool = Field(
+        True,
+        description="estimate the disparity offset from the motion while running and apply it "
+        "(`hippo_nav.vo.disparity`, docs/vo.md); `disparity_offset_px` is where it starts",
+    )
+    disparity_calibration_window: int = Field(
+        200, ge=1, le=100_000, description="at most this many frames' estimates are pooled"
+    )
+    disparity_calibration_min_frames: int = Field(
+        10, ge=1, le=100_000, description="estimates pooled before the offset in use may change"
+    )
+    disparity_calibration_max_sigma_px: float = Field(
+        0.1,
+        gt=0.0,
+        description="a frame whose fit has a larger standard error is left out (it cannot tell an offset: "
+        "a camera standing still; a moving car's frames have 0.01–0.04 px)",
+    )
+    disparity_calibration_deadband_px: float = Field(
+        0.1,
+        ge=0.0,
+        description="the offset in use changes only when the pooled estimate is beyond this (and three "
+        "standard errors): the estimate's own bias is about ±0.05 px (+0.03 on renders with no offset; "
+        "0.16 against the best 0.2–0.25 on KITTI 06), so a smaller change is not a measurement",
     )
     stereo_bias_window: int = Field(
         50,
@@ -318,6 +349,14 @@ class StereoOdometry:
                 min_shared_landmarks=p.window_min_shared,
                 min_disparity_px=p.min_disparity_px,
             )
+        # The rig's disparity offset outlives `reset`: a new trajectory is the same cameras.
+        self._calibration = DisparityCalibration(
+            p.disparity_offset_px,
+            p.disparity_calibration_window,
+            p.disparity_calibration_min_frames,
+            p.disparity_calibration_deadband_px,
+            p.disparity_calibration_max_sigma_px,
+        )
         self.reset()
 
     def reset(self) -> None:
@@ -336,6 +375,7 @@ class StereoOdometry:
         if self._window is not None:
             self._window.clear()
         self.warnings: list[str] = []
+        self._warned_offset = False
 
     # ------------------------------------------------------------------------------------------------
     def process(self, frame) -> VoStep:
@@ -452,7 +492,7 @@ class StereoOdometry:
         if len(corners) == 0:
             return _StereoPoints(left, kept_px, kept_m, kept_m, kept_ids, kept_right_u)
         guess = corners.copy()
-        guess[:, 0] -= self.fx * self.baseline_m / p.stereo_guess_depth_m - p.disparity_offset_px
+        guess[:, 0] -= self.fx * self.baseline_m / p.stereo_guess_depth_m - self.disparity_offset_px
         in_right, found = self._track(left, right, corners, guess)
         keep, disparity = self._stereo_check(left, right, corners, in_right, found)
         n_new = int(keep.sum())
@@ -531,7 +571,7 @@ class StereoOdometry:
         """(matched mask, disparity px) of left pixels and their KLT positions in the right image: back
         into the left (left–right consistency), a small row error and a positive disparity."""
         p = self.params
-        disparity = pts[:, 0] - in_right[:, 0] + p.disparity_offset_px
+        disparity = pts[:, 0] - in_right[:, 0] + self.disparity_offset_px
         keep = (
             found
             & (np.abs(in_right[:, 1] - pts[:, 1]) < p.stereo_row_tolerance_px)
@@ -602,7 +642,7 @@ class StereoOdometry:
         predicted_z = self._project(object_points, cur_from_prev)[:, 2]
         guess = image_px.copy()
         predicted_disparity = self.fx * self.baseline_m / np.maximum(predicted_z, 1e-3)
-        guess[:, 0] -= (predicted_disparity - p.disparity_offset_px).astype(np.float32)
+        guess[:, 0] -= (predicted_disparity - self.disparity_offset_px).astype(np.float32)
         in_right, ok, _ = cv2.calcOpticalFlowPyrLK(
             left.full, right.full, image_px, guess, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._klt_short
         )
@@ -612,6 +652,8 @@ class StereoOdometry:
         # Judged on the previous frame's own stereo points: the window's refined ones are not what the
         # disparities measured.
         assert best.stereo_m is not None
+        if p.disparity_self_calibration and self._calibration.wants_frame():
+            self._calibrate_disparity(cur_from_prev, best.stereo_m, image_px, in_right, has_right)
         self._judge_stereo_bias(cur_from_prev, best.stereo_m, disparity, has_right)
         rmse = self._rmse(cur_from_prev, object_points, image_px.astype(np.float64))
         kept = (
@@ -691,6 +733,49 @@ class StereoOdometry:
             return float("nan")
         return float(np.median(self._disparity_residuals_px))
 
+    @property
+    def disparity_offset_px(self) -> float:
+        """The disparity offset in use (px): `disparity_offset_px` as configured, or as the self-calibration
+        moved it (`disparity_self_calibration`, `hippo_nav.vo.disparity`)."""
+        return self._calibration.offset_px
+
+    def _calibrate_disparity(
+        self,
+        cur_from_prev: np.ndarray,
+        prev_points_m: np.ndarray,
+        left_px: np.ndarray,
+        right_px: np.ndarray,
+        has_right: np.ndarray,
+    ) -> None:
+        """One frame's estimate of the offset into the calibration; warn once when it moves far from the
+        configured offset (the calibration, not the odometry, should be fixed)."""
+        p = self.params
+        in_use = self._calibration.offset_px
+        fitted = frame_offset_px(
+            cur_from_prev,
+            prev_points_m,
+            left_px,
+            right_px[:, 0].astype(np.float64) - in_use,
+            has_right,
+            (self.fx, self.fy, self.cx, self.cy, self.baseline_m),
+            p.ransac_reprojection_px,
+        )
+        if fitted is None or abs(fitted[0]) > _MAX_OFFSET_STEP_PX:
+            return
+        if not self._calibration.add(*fitted) or self._warned_offset:
+            return
+        applied = self._calibration.offset_px
+        if abs(applied - p.disparity_offset_px) >= _WARN_OFFSET_PX:
+            self._warned_offset = True
+            message = (
+                f"the stereo pair looks biased: the motion says its disparities need {applied:+.2f} px so far "
+                f"(configured disparity_offset_px {p.disparity_offset_px:+.2f}), which the odometry now "
+                "applies and keeps estimating (vo.disparity_self_calibration; the final value is "
+                "metrics.json's data.disparity_offset_px). Check the calibration's baseline and rectification"
+            )
+            self.warnings.append(message)
+            log.warning("%s", message)
+
     def _judge_stereo_bias(
         self, cur_from_prev: np.ndarray, points_m: np.ndarray, disparity_px: np.ndarray, has_right: np.ndarray
     ) -> None:
@@ -748,7 +833,7 @@ class StereoOdometry:
         Robust (Huber) weights keep a few bad tracks from pulling the step."""
         huber_px = self.params.ransac_reprojection_px
         left_obs = left_px.astype(np.float64)
-        right_u = right_px[has_right, 0].astype(np.float64) - self.params.disparity_offset_px
+        right_u = right_px[has_right, 0].astype(np.float64) - self.disparity_offset_px
         transform = cur_from_prev.copy()
         for _ in range(5):
             x = points_m @ transform[:3, :3].T + transform[:3, 3]
