@@ -236,3 +236,39 @@ def test_a_memory_made_with_other_settings_is_refused_naming_the_setting(
     with pytest.raises(SavedMemoryError, match=rf"made with {names.replace('.', '[.]')} ="):
         run(tmp_path / "x", config=config, progress=False, stop=5, memory_from=first_lap)
     assert not (tmp_path / "x").exists()
+
+
+class _RightShifted(Frames):
+    """The first `n` frames with every right image moved a pixel to the right (a disparity shortfall)."""
+
+    def __getitem__(self, i: int):
+        import dataclasses
+
+        import cv2
+
+        frame = super().__getitem__(i)
+        h, w = frame.right.shape
+        shift = np.float32([[1, 0, 1.0], [0, 1, 0]])
+        moved = cv2.warpAffine(frame.right, shift, (w, h), borderMode=cv2.BORDER_REPLICATE)
+        return dataclasses.replace(frame, right=moved)
+
+
+def test_a_later_session_starts_from_the_stereo_offset_the_first_found(demo, tmp_path):
+    """A run on a rig whose right image is a pixel off finds the offset from the motion and saves it with
+    its memory; a session started in that memory starts its VO there, unless its config sets the offset."""
+    from hippo_nav.pipeline import Pipeline
+
+    first = Pipeline(_RightShifted(demo, 90), config_from_dict(QUIET)).run(tmp_path / "first")
+    found_px = first.metrics["data"]["disparity_offset_px"]
+    assert found_px > 0.3  # it moved (the demo's 1 px reads about 0.6 after the first 10 frames)
+    memory = read_memory(tmp_path / "first")
+    assert memory.info["odometry"]["disparity_offset_px"] == found_px
+
+    later = Pipeline(_RightShifted(demo, 5), config_from_dict(QUIET), memory=memory)
+    assert later.odometry.disparity_offset_px == found_px  # type: ignore[attr-defined]
+    config = json.loads(json.dumps(QUIET))
+    config.setdefault("vo", {})["disparity_offset_px"] = 0.25
+    told = Pipeline(_RightShifted(demo, 5), config_from_dict(config), memory=memory)
+    assert told.odometry.disparity_offset_px == 0.25  # type: ignore[attr-defined]
+    fresh = Pipeline(_RightShifted(demo, 5), config_from_dict(QUIET))
+    assert fresh.odometry.disparity_offset_px == 0.0  # type: ignore[attr-defined]

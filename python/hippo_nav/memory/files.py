@@ -8,7 +8,7 @@
 | `views.npz` | the view cells (word features or templates) and what each recalls: its stored network state (`CompactView` codes), the vertex it was made at and its offset from it, the odometer when made |
 | `keyframes.npz` | the closure proposer's stereo keyframes, one per vertex |
 | `state.npz` | where the run stopped: the networks' full state, the active view cell, the last odometry pose — what a session continuing with the next frames needs (`SlamSystem(..., memory=..., resume=True)`) |
-| `memory.json` | format and version, the config that made the memory, the camera, and every file's size and SHA-256 |
+| `memory.json` | format and version, the config that made the memory, the camera, the VO's disparity offset as the run ended, and every file's size and SHA-256 |
 
 The manifest is written last, so a folder with a manifest is complete; loading checks the manifest, then every
 file's size and checksum, before anything is built, so a truncated or corrupted folder is one error naming the

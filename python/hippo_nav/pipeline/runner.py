@@ -46,6 +46,7 @@ from hippo_nav.pipeline.records import RunRecord, RunRecorder, RunResult, StageT
 from hippo_nav.pipeline.results import RunFacts
 from hippo_nav.pipeline.system import SlamSystem
 from hippo_nav.view_cells import ViewDescriptor
+from hippo_nav.vo.disparity import LIMIT_PX as DISPARITY_LIMIT_PX
 
 log = logging.getLogger("hippo_nav.pipeline")
 
@@ -89,7 +90,9 @@ class Pipeline:
         )
         # Front-end parts can be given (e.g. another VO in a notebook); by default they come from the config.
         self.odometry: Odometry = (
-            odometry if odometry is not None else parts.make_odometry(self.config, dataset.calibration)
+            odometry
+            if odometry is not None
+            else parts.make_odometry(_with_saved_rig(self.config, memory), dataset.calibration)
         )
         self.observers = list(observers)
         n = len(dataset)
@@ -306,6 +309,11 @@ class Pipeline:
                 except HippoNavError as err:  # a custom part that cannot be saved: the rest is still written
                     log.warning("no memory/ written: %s", err)
                     result.metrics.setdefault("unavailable", {})["memory"] = str(err)
+                offset_px = OdometryExtras.of(self.odometry).disparity_offset_px
+                if memory is not None and offset_px is not None:
+                    # The rig's stereo correction as this run ended (found by the VO's self-calibration):
+                    # a later session with the same cameras starts from it (`_with_saved_rig`).
+                    memory.info["odometry"] = {"disparity_offset_px": offset_px}
             try:
                 write_results(
                     result,
@@ -419,6 +427,20 @@ def open_input(
     return open_dataset(
         dataset, sequence, kind=kind, start=start, stop=stop, stride=stride, **(options or {})
     )
+
+
+def _with_saved_rig(config: PipelineConfig, memory: SavedMemory | None) -> PipelineConfig:
+    """The config whose VO starts from the disparity offset a saved memory's run ended with (the same rig,
+    calibrated by that run's self-calibration), unless this run sets `vo.disparity_offset_px` itself."""
+    saved = None if memory is None else (memory.info.get("odometry") or {}).get("disparity_offset_px")
+    if saved is None or "disparity_offset_px" in config.vo.model_fields_set:
+        return config
+    if not (isinstance(saved, (int, float)) and np.isfinite(saved) and abs(saved) <= DISPARITY_LIMIT_PX):
+        log.warning("the saved memory's disparity offset %r is not usable; starting from the config's", saved)
+        return config
+    log.info("the stereo VO starts from the saved run's disparity offset, %+.2f px", saved)
+    vo = config.vo.model_copy(update={"disparity_offset_px": float(saved)})
+    return config.model_copy(update={"vo": vo})
 
 
 def run(
