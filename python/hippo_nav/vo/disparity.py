@@ -12,10 +12,11 @@ step and the inverse depth of every point — a two-frame stereo bundle adjustme
 column and the current frame's left and right pixels of each point (the previous left pixel fixes the
 point's ray). Fitting the depths too, rather than taking them from the noisy previous disparities, keeps
 the estimate unbiased where disparities are a few pixels (taking the depths as given read +0.05–0.08 px
-on renders with no offset at all; this fit +0.03). Per frame the estimate scatters by 0.15–0.5 px; the
-median over the last `window` frames (`DisparityCalibration`) is what is applied, and only when it differs
-from the offset in use by more than `deadband_px` and by twice its standard error: on a consistent rig the
-offset in use never moves (a render's scale changes by ~1 % for every 0.03 px at 320×96 px).
+on renders with no offset at all; this fit +0.03). Per frame the estimate scatters by 0.15–0.5 px, so
+`DisparityCalibration` pools the estimates since the offset last changed and moves the offset by their
+median only when it is beyond `deadband_px` and three standard errors, judged when the pool has doubled:
+on a consistent rig the offset in use never moves (a render's scale changes by ~1 % for every 0.03 px at
+320×96 px).
 """
 
 from __future__ import annotations
@@ -24,6 +25,8 @@ from collections import deque
 
 import cv2
 import numpy as np
+
+from hippo_nav.vo.projection import pixel_rows
 
 __all__ = ["LIMIT_PX", "DisparityCalibration", "frame_offset_px"]
 
@@ -89,9 +92,8 @@ def frame_offset_px(
             (1, 0.0, everyone, left[:, 1], 0.0),
             (0, baseline_m, with_right, right[with_right], 1.0),
         ):
-            residual, jac_pose, jac_point = _pixel_rows(
-                x[rows], dx_dinverse[rows], axis, shift_m, (fx, fy, cx, cy)
-            )
+            residual, jac_pose, d_a, d_z = pixel_rows(x[rows], axis, shift_m, (fx, fy, cx, cy))
+            jac_point = d_a * dx_dinverse[rows, axis] + d_z * dx_dinverse[rows, 2]
             # the current right column is corrected by ε too: observed − ε
             blocks.append(
                 (
@@ -133,31 +135,6 @@ def frame_offset_px(
     return (offset, sigma_px) if np.isfinite(offset) and np.isfinite(sigma_px) else None
 
 
-def _pixel_rows(
-    x: np.ndarray,
-    dx_dinverse: np.ndarray,
-    axis: int,
-    shift_m: float,
-    camera: tuple[float, float, float, float],
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(predicted pixel coordinate `axis`, its Jacobian on a left perturbation (ω, τ) of the step, its
-    derivative on the point's inverse depth) for points `x` of the current left camera seen by a camera
-    `shift_m` to its right."""
-    fx, fy, cx, cy = camera
-    focal, centre = (fx, cx) if axis == 0 else (fy, cy)
-    a = x[:, axis] - shift_m
-    z = x[:, 2]
-    d_a, d_z = focal / z, -focal * a / z**2
-    # dx = ω × x + τ, so d(pixel)/dω = x × gradient, with the gradient (d_a on `axis`, d_z on z, else 0)
-    jac = np.zeros((len(x), 6))
-    if axis == 0:
-        jac[:, 0], jac[:, 1], jac[:, 2] = x[:, 1] * d_z, x[:, 2] * d_a - x[:, 0] * d_z, -x[:, 1] * d_a
-    else:
-        jac[:, 0], jac[:, 1], jac[:, 2] = x[:, 1] * d_z - x[:, 2] * d_a, -x[:, 0] * d_z, x[:, 0] * d_a
-    jac[:, 3 + axis], jac[:, 5] = d_a, d_z
-    return focal * a / z + centre, jac, d_a * dx_dinverse[:, axis] + d_z * dx_dinverse[:, 2]
-
-
 class DisparityCalibration:
     """The offset in use and the evidence for changing it (module doc): `add(ε, σ)` per frame, ε measured
     against the offset in use; `offset_px` is what the odometry applies.
@@ -180,7 +157,7 @@ class DisparityCalibration:
 
     def wants_frame(self) -> bool:
         """Whether this frame should be fitted: every frame until the pool is full, then every
-        `SETTLED_STRIDE`-th (a rig's offset does not change from frame to frame; the fit costs ~2 ms)."""
+        `SETTLED_STRIDE`-th (a rig's offset does not change from frame to frame; the fit costs ~1.5 ms)."""
         self._offered += 1
         return (
             len(self._estimates_px) < (self._estimates_px.maxlen or 1) or self._offered % SETTLED_STRIDE == 0

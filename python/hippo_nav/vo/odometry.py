@@ -54,6 +54,7 @@ from hippo_nav._core import HippoNavError, _SlidingWindow
 from hippo_nav._defaults import ConfigSection
 from hippo_nav.geometry import planar_step
 from hippo_nav.vo.disparity import DisparityCalibration, frame_offset_px
+from hippo_nav.vo.projection import pixel_rows
 
 log = logging.getLogger("hippo_nav.vo")
 
@@ -865,28 +866,11 @@ class StereoOdometry:
     def _pixel_rows(
         self, x: np.ndarray, offset_m: float, axis: int, observed: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
-        """(residuals (n,), Jacobian (n, 6)) of pixel coordinate `axis` (0: u, 1: v) of points `x` (current
-        left camera frame) seen by a camera `offset_m` to its right, for a left perturbation δ = (ω, τ)
-        of the pose: the point moves by dx = ω × x + τ, and u = fx·(x − offset)/z + cx by
-        du = fx/z·dx − fx·(x − offset)/z²·dz (v likewise with fy, y)."""
-        focal, centre = (self.fx, self.cx) if axis == 0 else (self.fy, self.cy)
-        a = x[:, axis] - (offset_m if axis == 0 else 0.0)
-        z = x[:, 2]
-        d_a, d_z = focal / z, -focal * a / z**2
-        jac = np.empty((len(x), 6))
-        # ω × x = (ω_y·z − ω_z·y, ω_z·x − ω_x·z, ω_x·y − ω_y·x)
-        if axis == 0:
-            jac[:, 0] = d_z * x[:, 1]
-            jac[:, 1] = d_a * z - d_z * x[:, 0]
-            jac[:, 2] = -d_a * x[:, 1]
-            jac[:, 3], jac[:, 4] = d_a, 0.0
-        else:
-            jac[:, 0] = -d_a * z + d_z * x[:, 1]
-            jac[:, 1] = -d_z * x[:, 0]
-            jac[:, 2] = d_a * x[:, 0]
-            jac[:, 3], jac[:, 4] = 0.0, d_a
-        jac[:, 5] = d_z
-        return focal * a / z + centre - observed, jac
+        """(residuals (n,), Jacobian (n, 6) on a left perturbation (ω, τ) of the pose) of pixel coordinate
+        `axis` (0: u, 1: v) of points `x` (current left camera frame) seen by a camera `offset_m` to its right
+        (`hippo_nav.vo.projection.pixel_rows`)."""
+        predicted, jac, _, _ = pixel_rows(x, axis, offset_m, (self.fx, self.fy, self.cx, self.cy))
+        return predicted - observed, jac
 
     def _project(self, points_m: np.ndarray, cur_from_prev: np.ndarray) -> np.ndarray:
         """(n, 3): pixel u, v and depth of points of the previous camera seen from the current one."""
