@@ -34,6 +34,7 @@ __all__ = [
     "_Vocabulary",
     "_WordCells",
     "__version__",
+    "_refine_matches",
     "default_params_json",
     "find_bumps",
     "fuse_modules",
@@ -126,6 +127,17 @@ class _SlidingWindow:
         left_px: npt.NDArray[np.float64],
         right_u_px: npt.NDArray[np.float64],
     ) -> dict[str, Any]: ...
+
+def _refine_matches(
+    image_a: npt.NDArray[np.uint8],
+    image_b: npt.NDArray[np.uint8],
+    points_a: npt.NDArray[np.float64],
+    matched_b: npt.NDArray[np.float64],
+    model: str,
+    half_window_px: int,
+    max_iterations: int = 5,
+    max_shift_px: float = 1.0,
+) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_]]: ...
 
 @final
 class _Vocabulary:

@@ -101,3 +101,12 @@ def test_pipeline_real_kitti_06_disparity_self_calibration(benchmark, shared_dat
     data = KittiOdometry(shared_data / "kitti_odometry", "06")
     data.name = "KITTI 06 frames 0-50, disparity self-calibration (baseline: offset fixed)"
     _bench(benchmark, data, {}, {"vo": {"disparity_self_calibration": False}})
+
+
+def test_pipeline_real_kitti_06_refined_matches(benchmark, shared_data):
+    """The current pipeline (every KLT match refined with a warped window, `vo.refine_matches`) against the
+    same pipeline on KLT's matches as they are, in the same rounds: what the refinement costs the system."""
+    benchmark.group = "pipeline by VO"
+    data = KittiOdometry(shared_data / "kitti_odometry", "06")
+    data.name = "KITTI 06 frames 0-50, refined matches (baseline: KLT's)"
+    _bench(benchmark, data, {}, {"vo": {"refine_matches": False}})

@@ -137,15 +137,17 @@ def test_a_shifted_right_image_is_found_and_corrected_while_running(demo):
 def test_real_kitti_06_scale_from_the_self_calibration(shared_data):
     """KITTI 06's shared frames need a fraction of a pixel (docs/vo.md). The motion finds it (after 40 of
     the 51 frames here, so the run itself gains a little) and it is the right one: the same frames driven
-    with it from the start have t_rel under 1 %."""
+    with it from the start have t_rel under 1 %. On KLT's matches as they are: with the refined ones (the
+    default) 06's pooled estimate is 0.096 px, just under the 0.1 px bar, and the offset stays (docs/vo.md)."""
     data = KittiOdometry(shared_data / "kitti_odometry", "06")
     frames = [data[i] for i in range(len(data))]
-    _, t_rel_fixed = _t_rel(data, frames, VoParams(disparity_self_calibration=False), SHORT_LENGTHS_M)
-    vo, t_rel_calibrated = _t_rel(data, frames, VoParams(), SHORT_LENGTHS_M)
+    klt = {"refine_matches": False}
+    _, t_rel_fixed = _t_rel(data, frames, VoParams(disparity_self_calibration=False, **klt), SHORT_LENGTHS_M)
+    vo, t_rel_calibrated = _t_rel(data, frames, VoParams(**klt), SHORT_LENGTHS_M)
     found_px = vo.disparity_offset_px
     assert 0.05 < found_px < 0.4
     assert t_rel_calibrated < t_rel_fixed
-    settled = VoParams(disparity_offset_px=found_px, disparity_self_calibration=False)
+    settled = VoParams(disparity_offset_px=found_px, disparity_self_calibration=False, **klt)
     _, t_rel_settled = _t_rel(data, frames, settled, SHORT_LENGTHS_M)
     assert t_rel_settled <= 1.0 < t_rel_fixed
 

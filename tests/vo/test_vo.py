@@ -181,12 +181,17 @@ def test_real_kitti_01_highway_scale_follows_the_right_camera_baseline(shared_da
     comes out 14–15 % too long while the rotations match the ground truth to 0.03°/frame, which is what
     the 0.469 m camera-0 → camera-3 baseline predicts (0.537 / 0.469 = 1.145). So the test checks that
     the scale follows the stated baseline, then measures accuracy with the camera-3 baseline taken from
-    the same calib.txt (P3), not fitted to the ground truth."""
+    the same calib.txt (P3), not fitted to the ground truth.
+
+    On KLT's matches as they are (`refine_matches=False`): the refined stereo matches of this highway, most
+    of them on the road, have larger disparities, and the steps come out 9.4 % long instead of 14.5 %, so
+    part of what the camera-3 baseline explains here is KLT's bias on the road (docs/vo.md)."""
     data = KittiOdometry(shared_data / "kitti_odometry", "01")
     gt = _rebased(data.ground_truth())
+    klt = {"refine_matches": False}
     # The frame-to-frame steps: their scale is the stereo pair's alone (the window adds temporal parallax,
     # which pulls a biased pair's scale part of the way back: 1.118 here).
-    est, _ = run_odometry(data, VoParams(window_keyframes=0, disparity_self_calibration=False))
+    est, _ = run_odometry(data, VoParams(window_keyframes=0, disparity_self_calibration=False, **klt))
     true_steps = np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1)
     ratio = np.median(np.linalg.norm(np.diff(est[:, :3, 3], axis=0), axis=1) / true_steps)
     baseline_cam3_m = -data.calibration.P3[0, 3] / data.calibration.P3[0, 0]
@@ -197,7 +202,7 @@ def test_real_kitti_01_highway_scale_follows_the_right_camera_baseline(shared_da
     data.calibration = dataclasses.replace(data.calibration, P1=p1)
     # Without the self-calibration: it reads the depth-dependent error the baseline does not explain
     # (tests/vo/test_disparity.py) and would correct the scale a second time.
-    est, steps = run_odometry(data, VoParams(disparity_self_calibration=False))
+    est, steps = run_odometry(data, VoParams(disparity_self_calibration=False, **klt))
     errors, yaw_rms, speed_rms = _evaluate("KITTI 01 (camera-3 baseline)", data, est, steps, SHORT_LENGTHS_M)
     assert errors["segments"] > 100
     assert errors["t_rel_percent"] <= 2.5

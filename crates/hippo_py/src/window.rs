@@ -2,13 +2,19 @@
 //!
 //! Poses cross as 4×4 float64 `camera_from_world` matrices; a keyframe's observations as landmark ids
 //! (n,) int64, left pixels (n, 2) float64 and right-image columns (n,) float64 (NaN: no right match).
-//! The adjustment runs with the interpreter released.
+//! The adjustment runs with the interpreter released. `_refine_matches` refines KLT matches with a warped
+//! window (`hippo_vo::tracks`).
 use crate::convert::{flat_f64, rows_f64, to_numpy};
 use crate::errors::{to_py_err, HippoNavError};
 use hippo_vo::window::isometry_from_matrix;
-use hippo_vo::{Observation, SlidingWindow, StereoCamera, WindowParams};
+use hippo_vo::{
+    refine_matches, GrayImage, Observation, RefineParams, SlidingWindow, StereoCamera, WarpModel,
+    WindowParams,
+};
 use nalgebra::Matrix4;
-use numpy::{PyReadonlyArray1, PyReadonlyArrayDyn, PyUntypedArrayMethods};
+use numpy::{
+    PyArrayDyn, PyReadonlyArray1, PyReadonlyArray2, PyReadonlyArrayDyn, PyUntypedArrayMethods,
+};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
@@ -128,7 +134,77 @@ impl PySlidingWindow {
     }
 }
 
+/// A C-contiguous (H, W) uint8 image as the refinement's view of it.
+fn gray<'a>(name: &str, image: &'a PyReadonlyArray2<'_, u8>) -> PyResult<GrayImage<'a>> {
+    let shape = image.shape();
+    let wrong = || {
+        HippoNavError::new_err(format!(
+            "`{name}` must be a C-contiguous (H, W) uint8 image"
+        ))
+    };
+    if !image.is_c_contiguous() {
+        return Err(wrong());
+    }
+    let data = image.as_slice().map_err(|_| wrong())?;
+    GrayImage::new(data, shape[1], shape[0]).map_err(to_py_err)
+}
+
+/// KLT matches refined with a warped window (see `hippo_vo::tracks`): `model` "affine" (temporal tracks)
+/// or "row_shear" (rectified stereo). Returns (refined (n, 2) float64, refined (n,) bool); where a match
+/// could not be refined its row holds the match as given. Private: used by `hippo_nav.vo.StereoOdometry`.
+#[pyfunction]
+#[pyo3(signature = (image_a, image_b, points_a, matched_b, model, half_window_px, max_iterations=5, max_shift_px=1.0))]
+#[allow(clippy::too_many_arguments, clippy::type_complexity)]
+fn _refine_matches<'py>(
+    py: Python<'py>,
+    image_a: PyReadonlyArray2<'_, u8>,
+    image_b: PyReadonlyArray2<'_, u8>,
+    points_a: PyReadonlyArrayDyn<'_, f64>,
+    matched_b: PyReadonlyArrayDyn<'_, f64>,
+    model: &str,
+    half_window_px: usize,
+    max_iterations: usize,
+    max_shift_px: f64,
+) -> PyResult<(Bound<'py, PyArrayDyn<f64>>, Bound<'py, PyArrayDyn<bool>>)> {
+    let model = match model {
+        "affine" => WarpModel::Affine,
+        "row_shear" => WarpModel::RowShear,
+        other => {
+            return Err(HippoNavError::new_err(format!(
+                "unknown warp model {other:?}: use \"affine\" or \"row_shear\""
+            )))
+        }
+    };
+    let (a, b) = (gray("image_a", &image_a)?, gray("image_b", &image_b)?);
+    let (n, points) = rows_f64("points_a", &points_a, &[2])?;
+    let (m, matched) = rows_f64("matched_b", &matched_b, &[2])?;
+    if m != n {
+        return Err(HippoNavError::new_err(format!(
+            "`points_a` ({n}) and `matched_b` ({m}) must have one row per match"
+        )));
+    }
+    let pairs = |v: &[f64]| -> Vec<[f64; 2]> { v.chunks_exact(2).map(|c| [c[0], c[1]]).collect() };
+    let (points, matched) = (pairs(&points), pairs(&matched));
+    let params = RefineParams {
+        half_window_px,
+        max_iterations,
+        max_shift_px,
+        ..RefineParams::default()
+    };
+    let refined = py
+        .detach(|| refine_matches(&a, &b, &points, &matched, model, &params))
+        .map_err(to_py_err)?;
+    let ok: Vec<bool> = refined.iter().map(Option::is_some).collect();
+    let out: Vec<f64> = refined
+        .iter()
+        .zip(&matched)
+        .flat_map(|(r, m)| r.unwrap_or(*m))
+        .collect();
+    Ok((to_numpy(py, out, &[n, 2])?, to_numpy(py, ok, &[n])?))
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PySlidingWindow>()?;
+    m.add_function(wrap_pyfunction!(_refine_matches, m)?)?;
     Ok(())
 }

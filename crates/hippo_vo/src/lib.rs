@@ -7,14 +7,18 @@
 //! Huber loss, observations beyond a χ² bound dropped as outliers, the oldest keyframe fixed), solved by
 //! Levenberg–Marquardt on the normal equations with the landmarks eliminated by the Schur complement.
 //!
+//! [`tracks`] refines the tracker's KLT matches with a warped window (a slanted road biases a square one).
+//!
 //! Conventions: camera x right, y down, z forward (the left camera of a rectified pair); a pose is
 //! `camera_from_world`; pixels of the input resolution; the right camera sits `baseline_m` along +x.
 #![warn(missing_docs)]
 pub mod bundle;
 pub mod camera;
 pub mod error;
+pub mod tracks;
 pub mod window;
 
 pub use camera::StereoCamera;
 pub use error::{Result, VoError};
+pub use tracks::{refine_matches, GrayImage, RefineParams, WarpModel};
 pub use window::{KeyframeOutcome, Observation, SlidingWindow, WindowParams};

@@ -11,8 +11,11 @@ Per stereo frame k (rectified pair, camera x right, y down, z forward; docs/spec
    which halves the translation error on forward motion).
 3. Stereo: each inlier is KLT-matched into the right image, started at the disparity the pose predicts,
    and back (left–right consistency); a rectified pair allows only a small row error and a positive
-   disparity. These matches feed step 2's right-image residual, and their depth `Z = fx · b / d` is the
-   point's 3-D position in camera k: the inliers are carried into frame k+1 (feature tracking).
+   disparity. Every match, temporal and stereo, is then refined with a window that may shear and stretch
+   (`refine_matches`, Rust `hippo_vo::tracks`): KLT's square window is biased on a slanted road, and the
+   bias has one sign, so it drifts the pitch. These matches feed step 2's right-image residual, and their
+   depth `Z = fx · b / d` is the point's 3-D position in camera k: the inliers are carried into frame k+1
+   (feature tracking).
 4. New corners: where no carried point lies within the minimum distance, FAST corners (the strongest per
    cell of a min-distance grid) top the frame up to `max_features`; they are stereo-matched like in step 3
    but from a typical disparity (a point 20 m away), so on the full pyramid.
@@ -50,7 +53,7 @@ import cv2
 import numpy as np
 from pydantic import ConfigDict, Field
 
-from hippo_nav._core import HippoNavError, _SlidingWindow
+from hippo_nav._core import HippoNavError, _refine_matches, _SlidingWindow
 from hippo_nav._defaults import ConfigSection
 from hippo_nav.geometry import planar_step
 from hippo_nav.vo.disparity import DisparityCalibration, frame_offset_px
@@ -113,6 +116,13 @@ class VoParams(ConfigSection):
         le=8,
         description="KLT pyramid levels where the start is known to about a pixel: the backward check, "
         "and the right-image match of a tracked point at the disparity its motion predicts",
+    )
+    refine_matches: bool = Field(
+        True,
+        description="refine every KLT match with a warped window (affine for tracks, a row shear for stereo "
+        "matches), started at KLT's answer: a square window on a slanted road is biased by a tenth of a "
+        "pixel with one sign, which the odometry turns into pitch drift (docs/vo.md, 'Warped-window "
+        "refinement'); False: KLT's matches as they are",
     )
     forward_backward_px: float = Field(1.0, gt=0.0, description="max forward–backward KLT error")
     stereo_row_tolerance_px: float = Field(1.5, gt=0.0, description="max row difference of a stereo match")
@@ -325,6 +335,7 @@ class StereoOdometry:
             wc = (p.klt_coarse_window_px or w) | 1
             self._klt_coarse = {"winSize": (wc, wc), "maxLevel": p.klt_levels - 1, "criteria": criteria}
         self._klt_fine = {"winSize": (w, w), "maxLevel": 0, "criteria": criteria}
+        self._refine_half_px = w // 2  # the warped-window refinement uses KLT's window (`refine_matches`)
         self._klt_short = {
             "winSize": (w, w),
             "maxLevel": min(p.klt_short_levels, p.klt_levels),
@@ -495,7 +506,7 @@ class StereoOdometry:
         guess = corners.copy()
         guess[:, 0] -= self.fx * self.baseline_m / p.stereo_guess_depth_m - self.disparity_offset_px
         in_right, found = self._track(left, right, corners, guess)
-        keep, disparity = self._stereo_check(left, right, corners, in_right, found)
+        keep, disparity, in_right = self._stereo_check(left, right, corners, in_right, found)
         n_new = int(keep.sum())
         new_ids = np.arange(self._next_id, self._next_id + n_new, dtype=np.int64)
         self._next_id += n_new
@@ -568,9 +579,10 @@ class StereoOdometry:
 
     def _stereo_check(
         self, left: _Image, right: _Image, pts: np.ndarray, in_right: np.ndarray, found: np.ndarray
-    ) -> tuple[np.ndarray, np.ndarray]:
-        """(matched mask, disparity px) of left pixels and their KLT positions in the right image: back
-        into the left (left–right consistency), a small row error and a positive disparity."""
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(matched mask, disparity px, right-image positions) of left pixels and their KLT positions in the
+        right image: back into the left (left–right consistency), a small row error and a positive
+        disparity; the kept matches refined with a row-shear window (`refine_matches`)."""
         p = self.params
         disparity = pts[:, 0] - in_right[:, 0] + self.disparity_offset_px
         keep = (
@@ -579,7 +591,34 @@ class StereoOdometry:
             & (disparity > p.min_disparity_px)
         )
         keep[keep] = self._track_back(right.full, left.full, in_right[keep], pts[keep])
-        return keep, disparity
+        if p.refine_matches and keep.any():
+            in_right = in_right.copy()
+            in_right[keep] = self._refined(left.full, right.full, pts[keep], in_right[keep], "row_shear")
+            disparity = pts[:, 0] - in_right[:, 0] + self.disparity_offset_px
+            keep &= disparity > p.min_disparity_px
+        return keep, disparity, in_right
+
+    def _refined(
+        self,
+        image_a: np.ndarray,
+        image_b: np.ndarray,
+        points_a: np.ndarray,
+        matched_b: np.ndarray,
+        model: str,
+    ) -> np.ndarray:
+        """`matched_b` refined by a warped window (`refine_matches`; Rust `hippo_vo::tracks`), float32; a
+        match that cannot be refined stays as it was."""
+        if len(points_a) == 0:
+            return matched_b
+        refined, _ = _refine_matches(
+            np.ascontiguousarray(image_a),
+            np.ascontiguousarray(image_b),
+            points_a.astype(np.float64),
+            matched_b.astype(np.float64),
+            model,
+            self._refine_half_px,
+        )
+        return refined.astype(np.float32)
 
     def _triangulate(self, pts: np.ndarray, disparity_px: np.ndarray) -> np.ndarray:
         z = self.fx * self.baseline_m / disparity_px.astype(np.float64)
@@ -647,7 +686,7 @@ class StereoOdometry:
         in_right, ok, _ = cv2.calcOpticalFlowPyrLK(
             left.full, right.full, image_px, guess, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._klt_short
         )
-        has_right, disparity = self._stereo_check(left, right, image_px, in_right, ok.ravel() == 1)
+        has_right, disparity, in_right = self._stereo_check(left, right, image_px, in_right, ok.ravel() == 1)
         if p.stereo_refinement:
             cur_from_prev = self._refine_stereo(cur_from_prev, object_points, image_px, in_right, has_right)
         # Judged on the previous frame's own stereo points: the window's refined ones are not what the
@@ -681,6 +720,10 @@ class StereoOdometry:
             & (tracked[:, 1] <= h - 1)
         )
         good[good] = self._track_back(left.full, prev.left.full, tracked[good], prev.pixels[good])
+        if p.refine_matches:
+            tracked[good] = self._refined(
+                prev.left.full, left.full, prev.pixels[good], tracked[good], "affine"
+            )
         n_tracked = int(good.sum())
         if n_tracked < p.min_inliers:
             return _Tracks(None, n_tracked, 0)
