@@ -17,6 +17,15 @@ frame j with dⱼ > dᵢ + L (skip if none), the pose error E = (Eᵢ⁻¹Eⱼ)�
 `rotation_angle_rad`). t_rel is the mean of the former over
 all segments in percent; r_rel the mean of the latter in degrees per 100 m. Poses are inverted as
 rigid transforms ([Rᵀ | −Rᵀt]), as evo does.
+
+Interpolated ground truth. KITTI's poses come from a GPS/IMU unit; where it dropped out, the released poses
+fill the gap with one constant motion: every step turns by the same rotation, to 1e-4°. A car never does
+that (the measured steps of every sequence change by 0.07–0.16° from one to the next, at the median, from
+road bumps and steering alone), so such a stretch is not a measurement, and on short segments it dominates
+r_rel: KITTI 06 frames 0–11 are one (docs/vo.md, "Ground truth that is not measured", where two
+estimates from the images alone agree with each other and not with it). `interpolated_steps` finds such
+stretches; `relative_errors_kitti(..., exclude_steps=...)` leaves out the segments that cross one. Real
+data only: a rendered or synthetic drive can turn at a constant rate for real.
 """
 
 from __future__ import annotations
@@ -162,17 +171,69 @@ def kitti_segments(gt: np.ndarray, lengths_m=KITTI_SEGMENT_LENGTHS_M, step: int 
     return np.array(rows, dtype=np.float64).reshape(-1, 3)
 
 
+# A step whose rotation differs from the next step's by less than this is "constant": measured KITTI steps
+# differ by 0.07–0.16° at the median (every sequence 00–10), interpolated ones by < 2e-4°.
+INTERPOLATED_STEP_TOLERANCE_DEG = 0.002
+INTERPOLATED_MIN_STEPS = 5  # a shorter run of equal steps can happen by chance on a smooth road
+
+
+def interpolated_steps(
+    gt: np.ndarray,
+    tolerance_deg: float = INTERPOLATED_STEP_TOLERANCE_DEG,
+    min_steps: int = INTERPOLATED_MIN_STEPS,
+) -> np.ndarray:
+    """(N − 1,) bool: step k (pose k → k + 1) lies in a run of at least `min_steps` consecutive steps
+    that all turn by the same rotation (each within `tolerance_deg` of the next): ground truth filled in
+    with a constant motion, not measured (see the module doc)."""
+    gt = _as_poses(gt, "ground truth")
+    flags = np.zeros(max(len(gt) - 1, 0), dtype=bool)
+    if len(gt) < min_steps + 1:
+        return flags
+    steps = rigid_inverse(gt[:-1]) @ gt[1:]
+    change_deg = np.degrees(
+        rotation_angle_rad(np.swapaxes(steps[:-1, :3, :3], -1, -2) @ steps[1:, :3, :3])
+    )  # change c_k between step k and step k + 1
+    same = change_deg < tolerance_deg
+    k = 0
+    while k < len(same):
+        if not same[k]:
+            k += 1
+            continue
+        end = k
+        while end < len(same) and same[end]:
+            end += 1
+        if end - k + 1 >= min_steps:  # changes k..end-1 join steps k..end
+            flags[k : end + 1] = True
+        k = end
+    return flags
+
+
 def relative_errors_kitti(
-    gt: np.ndarray, est: np.ndarray, lengths=KITTI_SEGMENT_LENGTHS_M, step: int = 10
+    gt: np.ndarray,
+    est: np.ndarray,
+    lengths=KITTI_SEGMENT_LENGTHS_M,
+    step: int = 10,
+    exclude_steps: np.ndarray | None = None,
 ) -> dict:
     """KITTI devkit relative errors (see the module doc).
 
     Returns `t_rel_percent`, `r_rel_deg_per_100m` (means over all segments), `segments` (their count) and
     `per_length`: {length_m: {"t_rel_percent", "r_rel_deg_per_100m", "segments"}}. With no segment
     (a trajectory shorter than the shortest length) the means are NaN and `segments` is 0.
+    `exclude_steps` ((N − 1,) bool, e.g. `interpolated_steps(gt)`): segments that contain a flagged step
+    are left out (the devkit's figure is the one without).
     """
     gt, est = _pair(gt, est)
     segments = kitti_segments(gt, lengths, step)
+    if exclude_steps is not None and len(segments):
+        flagged = np.asarray(exclude_steps, dtype=bool)
+        if flagged.shape != (len(gt) - 1,):
+            raise DatasetError(
+                f"exclude_steps must have one flag per step ({len(gt) - 1}), got {flagged.shape}"
+            )
+        crossed = np.concatenate([[0], np.cumsum(flagged)])  # flagged steps before each pose
+        first, last = segments[:, 0].astype(np.int64), segments[:, 1].astype(np.int64)
+        segments = segments[crossed[last] == crossed[first]]
     if len(segments) == 0:
         nan = float("nan")
         return {"t_rel_percent": nan, "r_rel_deg_per_100m": nan, "segments": 0, "per_length": {}}

@@ -103,6 +103,7 @@ def test_pipeline_real_kitti_06_disparity_self_calibration(benchmark, shared_dat
     _bench(benchmark, data, {}, {"vo": {"disparity_self_calibration": False}})
 
 
+@pytest.mark.data
 def test_pipeline_real_kitti_06_refined_matches(benchmark, shared_data):
     """The current pipeline (every KLT match refined with a warped window, `vo.refine_matches`) against the
     same pipeline on KLT's matches as they are, in the same rounds: what the refinement costs the system."""

@@ -5,7 +5,8 @@
 Rows (each VO variant on each set, measured in the same run, one after another on the same machine):
 - real KITTI 06 frames 0–50 (urban), and 01 frames 0–50 (highway) as given and with its documented
   disparity offset (`vo.disparity_offset_px` 1.5 px; docs/vo.md): t_rel and r_rel over every start frame
-  and the 10–50 m segments these 51 frames allow;
+  and the 10–50 m segments these 51 frames allow; also on the segments whose ground truth was measured
+  (06's frames 0–11 are filled in with a constant motion: metrics.interpolated_steps, docs/vo.md);
 - the renders of `--renders` (a KITTI root made by `hippo-nav render`; sequences 00, 02, 05, 06, 08 when
   present): VO alone, ATE 2-D and 3-D (SE(3) alignment), t_rel and r_rel over the devkit's 100–800 m
   segments (every 10th start frame, as the devkit).
@@ -33,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 from hippo_nav.datasets import KittiOdometry
-from hippo_nav.metrics import KITTI_SEGMENT_LENGTHS_M, ate_rmse, relative_errors_kitti
+from hippo_nav.metrics import KITTI_SEGMENT_LENGTHS_M, ate_rmse, interpolated_steps, relative_errors_kitti
 from hippo_nav.vo import StereoOdometry, VoParams
 
 SHORT_LENGTHS_M = (10.0, 20.0, 30.0, 40.0, 50.0)
@@ -63,11 +64,15 @@ def run_vo(dataset, params: VoParams) -> tuple[np.ndarray, float, int, float]:
     return np.stack(poses), 1e3 * float(np.median(times)), not_ok, vo.disparity_offset_px
 
 
-def measure(dataset, params: VoParams, lengths, step: int) -> dict:
+def measure(dataset, params: VoParams, lengths, step: int, real: bool = False) -> dict:
     est, ms, not_ok, offset_px = run_vo(dataset, params)
     gt = dataset.ground_truth()
     gt = np.linalg.inv(gt[0]) @ gt
     rel = relative_errors_kitti(gt, est, lengths=lengths, step=step)
+    # Real drives: also the errors on the segments whose ground truth was measured, not filled in with a
+    # constant motion (KITTI 06 frames 0–11; metrics.interpolated_steps). Renders are exact everywhere.
+    interpolated = interpolated_steps(gt) if real else np.zeros(len(gt) - 1, dtype=bool)
+    measured = relative_errors_kitti(gt, est, lengths=lengths, step=step, exclude_steps=interpolated)
     length_m = float(np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1).sum())
     return {
         "frames": len(dataset),
@@ -77,6 +82,10 @@ def measure(dataset, params: VoParams, lengths, step: int) -> dict:
         "t_rel_percent": rel["t_rel_percent"],
         "r_rel_deg_per_100m": rel["r_rel_deg_per_100m"],
         "segments": rel["segments"],
+        "interpolated_gt_steps": int(interpolated.sum()),
+        "t_rel_measured_gt_percent": measured["t_rel_percent"],
+        "r_rel_measured_gt_deg_per_100m": measured["r_rel_deg_per_100m"],
+        "segments_measured_gt": measured["segments"],
         "ms_per_frame": ms,
         "frames_not_ok": not_ok,
         "disparity_offset_px": offset_px,
@@ -119,11 +128,12 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     results: dict[str, dict[str, dict]] = {}
     for label, factory, extra, lengths, step in sets:
+        real = lengths is not None  # the real drives are the short ones, on 10–50 m segments
         dataset = factory()
         results[label] = {}
         for name, overrides in variants.items():
             params = VoParams(**{**extra, **overrides})
-            row = measure(dataset, params, lengths or KITTI_SEGMENT_LENGTHS_M, step)
+            row = measure(dataset, params, lengths or KITTI_SEGMENT_LENGTHS_M, step, real)
             results[label][name] = row
             print(
                 f"{label:38s} {name:16s} "
@@ -136,7 +146,7 @@ def main(argv: list[str] | None = None) -> int:
         configured = VoParams(**extra).disparity_offset_px
         if found is not None and found != configured:
             params = VoParams(**{**extra, "disparity_offset_px": found, "disparity_self_calibration": False})
-            row = measure(dataset, params, lengths or KITTI_SEGMENT_LENGTHS_M, step)
+            row = measure(dataset, params, lengths or KITTI_SEGMENT_LENGTHS_M, step, real)
             results[label]["window_found_offset"] = row
             print(f"{label:38s} window_found_offset {json.dumps(row)}", flush=True)
         (args.out / "vo.json").write_text(json.dumps(results, indent=1))
@@ -149,9 +159,9 @@ def main(argv: list[str] | None = None) -> int:
 def table(results: dict, variants: list[str]) -> str:
     base = variants[0]
     lines = [
-        "| data | VO | ATE 2-D / 3-D (m) | t_rel (%) | r_rel (°/100 m) | disparity offset at the end (px) "
-        "| time per frame (× " + base + ") |",
-        "|---|---|---|---|---|---|---|",
+        "| data | VO | ATE 2-D / 3-D (m) | t_rel (%) | r_rel (°/100 m) | t_rel / r_rel, measured ground truth "
+        "| disparity offset at the end (px) | time per frame (× " + base + ") |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for label, rows in results.items():
         for name in variants:
@@ -159,9 +169,14 @@ def table(results: dict, variants: list[str]) -> str:
                 continue
             r = rows[name]
             ratio = r["ms_per_frame"] / rows[base]["ms_per_frame"] if base in rows else float("nan")
+            measured = (
+                f"{r['t_rel_measured_gt_percent']:.2f} / {r['r_rel_measured_gt_deg_per_100m']:.2f}"
+                if r.get("interpolated_gt_steps")
+                else "same"
+            )
             lines.append(
                 f"| {label} | {name} | {r['ate_2d_m']:.2f} / {r['ate_3d_m']:.2f} | {r['t_rel_percent']:.2f} | "
-                f"{r['r_rel_deg_per_100m']:.2f} | {r['disparity_offset_px']:+.2f} | {ratio:.2f} |"
+                f"{r['r_rel_deg_per_100m']:.2f} | {measured} | {r['disparity_offset_px']:+.2f} | {ratio:.2f} |"
             )
     return "\n".join(lines) + "\n"
 

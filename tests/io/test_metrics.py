@@ -10,6 +10,7 @@ import pytest
 from hippo_nav.io import DatasetError, read_kitti_poses, read_tum, write_kitti_poses, write_tum
 from hippo_nav.metrics import (
     ate_rmse,
+    interpolated_steps,
     relative_errors_kitti,
     relative_pose_errors,
     umeyama_alignment,
@@ -151,6 +152,56 @@ def test_relative_errors_of_a_scaled_straight_drive() -> None:
     assert result["r_rel_deg_per_100m"] == pytest.approx(0.0, abs=1e-9)
     short = relative_errors_kitti(gt[:50], est[:50])
     assert short["segments"] == 0 and np.isnan(short["t_rel_percent"])
+
+
+def wobbly_drive(n: int, seed: int = 2) -> np.ndarray:
+    """1 m steps forward, each turning by a random small yaw (σ 0.1°, as measured KITTI steps differ)."""
+    rng = np.random.default_rng(seed)
+    poses = np.tile(np.eye(4), (n, 1, 1))
+    for k in range(1, n):
+        step = np.eye(4)
+        step[:3, :3] = rotation_y(np.radians(rng.normal(scale=0.1)))
+        step[2, 3] = 1.0
+        poses[k] = poses[k - 1] @ step
+    return poses
+
+
+def test_interpolated_ground_truth_is_found_and_its_segments_left_out() -> None:
+    """Steps 20–31 of a measured drive replaced by one constant motion, as KITTI's GPS gaps are: exactly
+    those steps are flagged, and an estimate that drove what the car really did is judged without them."""
+    truth = wobbly_drive(120)
+    gt = truth.copy()
+    constant = np.linalg.inv(truth[20]) @ truth[32]  # the gap's end points kept, the motion between made even
+    twist = np.eye(4)
+    twist[:3, :3] = rotation_y(np.arctan2(constant[0, 2], constant[2, 2]) / 12)
+    twist[2, 3] = 1.0
+    for k in range(21, 32):
+        gt[k] = gt[k - 1] @ twist
+    for k in range(32, 120):
+        gt[k] = gt[31] @ twist @ np.linalg.inv(truth[32]) @ truth[k]
+    flags = interpolated_steps(gt)
+    assert np.flatnonzero(flags).tolist() == list(range(20, 32))
+    assert not interpolated_steps(truth).any()
+    assert not interpolated_steps(gt, min_steps=13).any()  # a run of 12 steps is shorter than 13
+
+    est = truth  # what the car did: the interpolated ground truth disagrees with it only inside the gap
+    lengths = (5.0, 10.0, 20.0)
+    every = relative_errors_kitti(gt, est, lengths=lengths, step=1)
+    measured = relative_errors_kitti(gt, est, lengths=lengths, step=1, exclude_steps=flags)
+    assert measured["segments"] < every["segments"]
+    assert measured["r_rel_deg_per_100m"] < 1e-6 < every["r_rel_deg_per_100m"]
+    none = relative_errors_kitti(gt, est, lengths=lengths, step=1, exclude_steps=np.zeros(119, dtype=bool))
+    assert none == every
+    with pytest.raises(DatasetError, match="one flag per step"):
+        relative_errors_kitti(gt, est, lengths=lengths, exclude_steps=flags[:-1])
+
+
+@pytest.mark.data
+def test_kitti_ground_truth_gaps(shared_data: Path) -> None:
+    """The released KITTI poses: 06 frames 0–11 are a constant motion (docs/vo.md); 01 has none."""
+    poses = shared_data / "kitti_odometry" / "poses"
+    assert np.flatnonzero(interpolated_steps(read_kitti_poses(poses / "06.txt"))).tolist() == list(range(11))
+    assert not interpolated_steps(read_kitti_poses(poses / "01.txt")).any()
 
 
 @pytest.fixture(scope="module")
