@@ -25,7 +25,8 @@ road bumps and steering alone), so such a stretch is not a measurement, and on s
 r_rel: KITTI 06 frames 0–11 are one (docs/vo.md, "Ground truth that is not measured", where two
 estimates from the images alone agree with each other and not with it). `interpolated_steps` finds such
 stretches; `relative_errors_kitti(..., exclude_steps=...)` leaves out the segments that cross one. Real
-data only: a rendered or synthetic drive can turn at a constant rate for real.
+data only: a rendered or synthetic drive can turn at a constant rate for real. (A car standing still comes
+closest among measured steps: 07's stops would be flagged from a tolerance of 0.01°, five times this one.)
 """
 
 from __future__ import annotations
