@@ -7,7 +7,9 @@ feature, about 16 kB at 300 features — no image is stored.
 
 Stereo matching follows the VO (`hippo_nav.vo`): each corner is tracked into the right image with
 pyramidal KLT started at the disparity of a typical depth, checked back into the left image, and kept when
-its row stays within `stereo_row_tolerance_px` and its disparity is positive. ORB's patch and border adapt
+its row stays within `stereo_row_tolerance_px` and its disparity is positive; then refined with a row-sheared
+window (`refine_stereo`, Rust `hippo_vo::tracks`, as the VO's matches are: KLT's square window reads a slanted
+road's disparity short, which made keyframe depths ~5 % long there, docs/views.md). ORB's patch and border adapt
 to small images (a 96-row render keeps most of its rows).
 """
 
@@ -20,7 +22,7 @@ import cv2
 import numpy as np
 from pydantic import ConfigDict, Field
 
-from hippo_nav._core import HippoNavError
+from hippo_nav._core import HippoNavError, _refine_matches
 from hippo_nav._defaults import ConfigSection
 
 
@@ -100,6 +102,11 @@ class ClosureConfig(ConfigSection):
         0.05, gt=0.0, description="… and within this heading of each other"
     )
     stereo_row_tolerance_px: float = Field(1.5, gt=0.0)
+    refine_stereo: bool = Field(
+        True,
+        description="refine each stereo match with a row-sheared window (as the VO does, docs/vo.md): KLT's "
+        "square window is biased on a slanted road, which made measured links a few percent long",
+    )
     stereo_guess_depth_m: float = Field(20.0, gt=0.0, description="depth whose disparity starts stereo KLT")
     forward_backward_px: float = Field(1.0, gt=0.0, description="max left-right-left KLT error")
 
@@ -200,6 +207,19 @@ class KeyframeExtractor:
         index = index[np.argsort(-response[index], kind="stable")[: cfg.keyframe_features]]
         if index.size == 0:
             return _empty_keyframe()
+        if cfg.refine_stereo:
+            refined, _ = _refine_matches(
+                np.ascontiguousarray(left),
+                np.ascontiguousarray(right),
+                pixels[index].astype(np.float64),
+                in_right[index].astype(np.float64),
+                "row_shear",
+                self._klt["winSize"][0] // 2,
+            )
+            disparity[index] = pixels[index, 0] - refined[:, 0].astype(np.float32) + offset_px
+            index = index[disparity[index] > 0.5]
+            if index.size == 0:
+                return _empty_keyframe()
         px = pixels[index]
         z = self.fx * self.baseline_m / disparity[index].astype(np.float64)
         points = np.column_stack([(px[:, 0] - self.cx) * z / self.fx, (px[:, 1] - self.cy) * z / self.fy, z])
