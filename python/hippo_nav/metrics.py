@@ -19,11 +19,11 @@ all segments in percent; r_rel the mean of the latter in degrees per 100 m. Pose
 rigid transforms ([Rᵀ | −Rᵀt]), as evo does.
 
 Interpolated ground truth. KITTI's poses come from a GPS/IMU unit; where it dropped out, the released poses
-fill the gap with one constant motion: every step turns by the same rotation, to 1e-4°. A car never does
-that (the measured steps of every sequence change by 0.07–0.16° from one to the next, at the median, from
+fill the gap with one constant motion: every step turns by the same rotation, to a few thousandths of a
+degree. A car never does that (the measured steps of every sequence change by 0.07–0.16° from one to the next, at the median, from
 road bumps and steering alone), so such a stretch is not a measurement, and on short segments it dominates
 r_rel: KITTI 06 frames 0–11 are one (docs/vo.md, "Ground truth that is not measured", where two
-estimates from the images alone agree with each other and not with it). `interpolated_steps` finds such
+estimates from the images alone and the VO agree with each other and not with it). `interpolated_steps` finds such
 stretches; `relative_errors_kitti(..., exclude_steps=...)` leaves out the segments that cross one. Real
 data only: a rendered or synthetic drive can turn at a constant rate for real. (A car standing still comes
 closest among measured steps: 07's stops would be flagged from a tolerance of 0.01°, five times this one.)
@@ -173,7 +173,7 @@ def kitti_segments(gt: np.ndarray, lengths_m=KITTI_SEGMENT_LENGTHS_M, step: int 
 
 
 # A step whose rotation differs from the next step's by less than this is "constant": measured KITTI steps
-# differ by 0.07–0.16° at the median (every sequence 00–10), interpolated ones by < 2e-4°.
+# differ by 0.07–0.16° at the median (every sequence 00–10), interpolated ones by at most 0.0018°.
 INTERPOLATED_STEP_TOLERANCE_DEG = 0.002
 INTERPOLATED_MIN_STEPS = 5  # a shorter run of equal steps can happen by chance on a smooth road
 
@@ -226,7 +226,7 @@ def relative_errors_kitti(
     """
     gt, est = _pair(gt, est)
     segments = kitti_segments(gt, lengths, step)
-    if exclude_steps is not None and len(segments):
+    if exclude_steps is not None:
         flagged = np.asarray(exclude_steps, dtype=bool)
         if flagged.shape != (len(gt) - 1,):
             raise DatasetError(
