@@ -25,12 +25,13 @@ from hippo_nav.datasets import KittiOdometry
 from hippo_nav.metrics import interpolated_steps
 from hippo_nav.vo import VoParams, run_odometry
 
+SIFT = cv2.SIFT_create(4000)
+
 
 def camera_from_previous_rotation(previous: np.ndarray, current: np.ndarray, camera_matrix: np.ndarray):
     """Rotation taking the previous camera's coordinates to the current one's (3×3), from the images alone."""
-    sift = cv2.SIFT_create(4000)
-    kp_a, desc_a = sift.detectAndCompute(previous, None)
-    kp_b, desc_b = sift.detectAndCompute(current, None)
+    kp_a, desc_a = SIFT.detectAndCompute(previous, None)
+    kp_b, desc_b = SIFT.detectAndCompute(current, None)
     matches = cv2.BFMatcher(cv2.NORM_L2).knnMatch(desc_a, desc_b, k=2)
     good = [m for m, n in matches if m.distance < 0.7 * n.distance]
     a = np.float64([kp_a[m.queryIdx].pt for m in good])

@@ -499,36 +499,20 @@ mod tests {
             GrayImage::new(&textured, w, h).unwrap(),
         );
         let params = RefineParams::default();
-        let out = refine_matches(
-            &f,
-            &f,
-            &[[30.0, 20.0]],
-            &[[30.0, 20.0]],
-            WarpModel::Affine,
-            &params,
-        )
-        .unwrap();
-        assert_eq!(out, vec![None], "a flat window cannot be refined");
-        let out = refine_matches(
-            &t,
-            &t,
-            &[[2.0, 20.0]],
-            &[[2.0, 20.0]],
-            WarpModel::Affine,
-            &params,
-        )
-        .unwrap();
-        assert_eq!(out, vec![None], "a window that leaves the image");
-        let out = refine_matches(
-            &t,
-            &t,
-            &[[f64::NAN, 20.0]],
-            &[[30.0, 20.0]],
-            WarpModel::Affine,
-            &params,
-        )
-        .unwrap();
-        assert_eq!(out, vec![None]);
+        let one = |image: &GrayImage<'_>, point: [f64; 2], start: [f64; 2]| {
+            refine_matches(image, image, &[point], &[start], WarpModel::Affine, &params).unwrap()
+        };
+        assert_eq!(
+            one(&f, [30.0, 20.0], [30.0, 20.0]),
+            vec![None],
+            "a flat window cannot be refined"
+        );
+        assert_eq!(
+            one(&t, [2.0, 20.0], [2.0, 20.0]),
+            vec![None],
+            "a window that leaves the image"
+        );
+        assert_eq!(one(&t, [f64::NAN, 20.0], [30.0, 20.0]), vec![None]);
         assert!(refine_matches(&t, &t, &[[30.0, 20.0]], &[], WarpModel::Affine, &params).is_err());
         assert!(GrayImage::new(&flat, w + 1, h).is_err());
     }
