@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 
 import cv2
@@ -17,6 +18,7 @@ from hippo_nav import HippoNavError
 from hippo_nav.cli import main
 from hippo_nav.datasets import KittiOdometry
 from hippo_nav.engine import EngineConfig, SpatialMemory, ViewPatterns
+from hippo_nav.io import DatasetError
 from hippo_nav.pipeline import Pipeline, config_from_dict
 from hippo_nav.synthetic import DEMO_SEQUENCE, demo_sequence
 from hippo_nav.vo import StereoOdometry
@@ -508,3 +510,22 @@ def test_an_image_declaring_an_absurd_size_is_refused_before_decoding(tmp_path, 
     # The same for an image inside a bag (a CompressedImage message).
     with pytest.raises(DatasetError, match=rf"bag /left: the image declares {side}x{side} px"):
         decode_image_bytes(_png_header(side, side), "bag /left")
+
+
+@pytest.mark.parametrize(
+    ("factor", "unit"), [(1e3, "milliseconds (divide them by 1,000)"), (1e9, "nanoseconds")]
+)
+def test_timestamps_in_another_unit_are_refused_before_any_frame(demo, factor, unit):
+    # In milliseconds every frame was a 100 s "time gap": one warning per frame, and the networks lost the
+    # motion across each (the place code's error grew fivefold on 20 real KITTI frames).
+    frames = Frames(demo, 20, timestamps_s=demo.timestamps_s[:20] * factor)
+    with pytest.raises(DatasetError, match="must be in seconds, and these look like " + re.escape(unit)):
+        Pipeline(frames, config_from_dict(QUIET))
+    assert frames.reads == []
+
+
+def test_a_stride_is_not_taken_for_another_time_unit(demo):
+    # Every 60th frame of a 10 Hz sequence: 6 s between the frames run, 0.1 s per sequence frame.
+    strided = KittiOdometry(demo_sequence(), DEMO_SEQUENCE, stride=60)
+    assert np.median(np.diff(strided.timestamps_s)) > 5.0
+    Pipeline(strided, config_from_dict(QUIET))

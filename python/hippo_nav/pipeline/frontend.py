@@ -5,8 +5,8 @@ The odometry plug point: anything with `process(frame) -> step` stands in for th
 `camera_prev_from_camera_cur` (4×4 SE(3): the current camera's pose in the previous camera's frame,
 identity on the first frame) and `status` ("ok" when the step was measured and trusted, "first" on the
 first frame; anything else is flagged). Optional, read by `OdometryExtras.of`: `tracked_pixels` (the
-left-image features it tracks, drawn by viewers), `warnings` and `stereo_bias_px` (reported in
-`metrics.json`), `disparity_offset_px` (the stereo correction in use after each frame: the closure's
+left-image features it tracks, drawn by viewers), `warnings`, `stereo_bias_px` and `stereo_fault` (reported
+in `metrics.json`), `disparity_offset_px` (the stereo correction in use after each frame: the closure's
 keyframes apply it too), `params` (a pydantic model written into `config.json`).
 
 `OdometryGuard` is the odometry's failure policy: an exception or a non-finite step reuses the previous
@@ -89,12 +89,21 @@ class OdometryExtras:
     warnings: list[str] = field(default_factory=list)
     stereo_bias_px: float | None = None
     disparity_offset_px: float | None = None
+    stereo_fault: str | None = (
+        None  # what is wrong with the stereo pair ("swapped", "unrectified", …), if known
+    )
 
     @classmethod
     def of(cls, odometry: object) -> OdometryExtras:
         bias = getattr(odometry, "stereo_bias_px", None)
         bias_px = None if bias is None or not np.isfinite(bias) else float(bias)
-        return cls(list(getattr(odometry, "warnings", [])), bias_px, disparity_offset_px(odometry))
+        fault = getattr(odometry, "stereo_fault", None)
+        return cls(
+            list(getattr(odometry, "warnings", [])),
+            bias_px,
+            disparity_offset_px(odometry),
+            None if fault is None else str(fault),
+        )
 
 
 def disparity_offset_px(odometry: object) -> float | None:

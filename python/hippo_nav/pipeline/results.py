@@ -303,6 +303,7 @@ class RunFacts:
     disparity_offset_px: float | None  # the stereo correction the odometry applied at the end, if any
     missing_frames: int
     frames_without_timestamp: int
+    stereo_fault: str | None = None  # the odometry's verdict on the stereo pair ("swapped", "unrectified", …)
 
 
 def evaluate(
@@ -317,10 +318,15 @@ def evaluate(
     vo_statuses = Counter(record.column("vo_status"))
     low_texture = int(sum(s in ("low_texture", "failed") for s in record.column("vo_status")))
     if n >= 10 and low_texture > 0.5 * n:
+        # A swapped or unrectified pair also leaves the odometry without points, but the images are fine.
+        what = (
+            f"no stereo depth for the odometry (the stereo pair looks {facts.stereo_fault}: see the warning above)"
+            if facts.stereo_fault
+            else "too little usable texture for the odometry (dark, blurred or covered images?)"
+        )
         log.warning(
-            "%d of %d frames (%.0f %%) had too little usable texture for the odometry (dark, blurred or "
-            "covered images?): the trajectory leans on the motion prior there",
-            low_texture, n, 100.0 * low_texture / n,
+            "%d of %d frames (%.0f %%) had %s: the trajectory leans on the motion prior there",
+            low_texture, n, 100.0 * low_texture / n, what,
         )  # fmt: skip
     metrics: dict[str, Any] = {
         "sequence": result.name,
@@ -356,6 +362,7 @@ def evaluate(
             "frames_after_skipped_frames": sum("skipped_frames" in f for f in record.column("data_flags")),
             "time_gaps": sum("time_gap" in f for f in record.column("data_flags")),
             "low_texture_frames": low_texture,
+            "stereo_fault": facts.stereo_fault,
         },
         "correction": correction,
         "timing": timing(record),

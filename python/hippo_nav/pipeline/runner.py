@@ -47,6 +47,7 @@ from hippo_nav.pipeline.results import RunFacts
 from hippo_nav.pipeline.system import SlamSystem
 from hippo_nav.view_cells import ViewDescriptor
 from hippo_nav.vo.disparity import LIMIT_PX as DISPARITY_LIMIT_PX
+from hippo_nav.vo.replay import frame_interval_s
 
 log = logging.getLogger("hippo_nav.pipeline")
 
@@ -80,6 +81,7 @@ class Pipeline:
         self.config = config if config is not None else PipelineConfig()
         self.progress = progress
         self.extras = DatasetExtras.of(dataset)
+        _check_time_unit(dataset)
         self.system = SlamSystem(
             dataset.calibration,
             self.config,
@@ -248,6 +250,7 @@ class Pipeline:
             data_warnings=self.extras.warnings + odometry.warnings,
             stereo_bias_px=odometry.stereo_bias_px,
             disparity_offset_px=odometry.disparity_offset_px,
+            stereo_fault=odometry.stereo_fault,
             missing_frames=len(self.extras.missing_frames),
             frames_without_timestamp=self.extras.frames_without_timestamp,
         )
@@ -477,3 +480,32 @@ def run(
         opened, config, progress=progress, odometry=odometry, observers=observers, memory=memory
     )
     return pipeline.run(out_dir, overwrite=overwrite)
+
+
+# A camera for odometry takes an image at least this often; timestamps that advance more slowly per
+# sequence frame are in another unit (KITTI's times.txt and every loader give seconds).
+_SLOWEST_FRAME_INTERVAL_S = 20.0
+_TIME_UNITS = (("milliseconds", 1e3), ("microseconds", 1e6), ("nanoseconds", 1e9))
+
+
+def _check_time_unit(dataset: StereoDataset) -> None:
+    """Refuse timestamps that are not seconds: milliseconds or nanoseconds would make every frame a time
+    gap (flagged, one warning per frame, and the networks would lose the motion across it)."""
+    interval_s = frame_interval_s(
+        np.asarray(dataset.frame_indices), np.asarray(dataset.timestamps_s, dtype=np.float64)
+    )
+    if interval_s is None or interval_s < _SLOWEST_FRAME_INTERVAL_S:
+        return
+    guess = next(
+        (
+            f"{unit} (divide them by {factor:,.0f})"
+            for unit, factor in _TIME_UNITS
+            if interval_s / factor < 2.0
+        ),
+        "another unit",
+    )
+    raise DatasetError(
+        f"{dataset.name}: the timestamps advance by a median {interval_s:.4g} per sequence frame, which as "
+        f"seconds would be a camera taking one image every {interval_s:.3g} s; timestamps must be in seconds, "
+        f"and these look like {guess}: fix the timestamps the dataset gives (KITTI: times.txt)"
+    )

@@ -28,6 +28,12 @@ Per stereo frame k (rectified pair, camera x right, y down, z forward; docs/spec
    plausible speed or turn makes the frame *flagged*: the motion prior stands in for the step, the
    carried points are dropped (the next frame detects afresh) and the status says why, so the odometry
    never crashes or jumps on a bad frame.
+7. The stereo pair itself: over the first frames with texture, the new corners' stereo matches are pooled
+   (`_judge_stereo_geometry`). Where most matches on their row lie further *right* in the right image, the
+   images are swapped; where matches lie a few pixels apart vertically, the pair is not rectified; where they
+   lie exactly where they were, one image was given twice. Each leaves no point with a depth, which looks like
+   a textureless scene frame after frame; the odometry warns once with what to fix and says so in
+   `stereo_fault`.
 
 Cost. KLT is almost all of it, and its cost is per point and per pyramid level (each level costs about one
 window's worth of work, whatever the start). So: a search from afar runs the levels above the image on
@@ -65,6 +71,19 @@ log = logging.getLogger("hippo_nav.vo")
 _MAX_OFFSET_STEP_PX = 3.0
 # The self-calibration warns once when the offset it applies is this far from the configured one.
 _WARN_OFFSET_PX = 0.3
+# The stereo pair is judged once this many new-corner stereo matches from this many frames are pooled. Pooled
+# so, real KITTI 06 and 01 (from frames 0 and 30) and the renders (00, 02, 05, 06, 08 from frames 0 and 1000;
+# `mild`, `strong`) put 77–99 % of KLT's right-image matches within the row tolerance, median row error at most
+# 0.38 px; of those with a clear disparity at most 3.8 % negative; at most 1.7 % within 0.1 px of no disparity.
+# A swapped pair: 100 % negative; a pair 6 px off its rows: 1 % on their row; one image given twice: 100 % at
+# no disparity (docs/vo.md, "A swapped or unrectified pair").
+_STEREO_JUDGE_MATCHES = 300
+_STEREO_JUDGE_FRAMES = 3
+_SWAPPED_SHARE = 0.8  # of the matches on their row with a clear disparity, at least this share negative
+_ON_ROW_SHARE = 0.5  # an unrectified pair: fewer matches on their row than this share, and a median row
+# error beyond the row tolerance
+_IDENTICAL_DISPARITY_PX = 0.1  # one image given as both: at least `_IDENTICAL_SHARE` of the matches on
+_IDENTICAL_SHARE = 0.5  # their row lie within this disparity
 
 STATUSES = ("first", "ok", "low_texture", "rejected")
 """`VoStep.status`: first frame (identity); a measured step; too few features, tracks or inliers (prior
@@ -388,6 +407,10 @@ class StereoOdometry:
             self._window.clear()
         self.warnings: list[str] = []
         self._warned_offset = False
+        # The stereo pair's verdict (module doc, 7): None while unjudged or fine; "swapped" or "unrectified".
+        self.stereo_fault: Literal["swapped", "unrectified", "identical"] | None = None
+        self._stereo_judged = False
+        self._stereo_pool: list[tuple[np.ndarray, np.ndarray]] = []  # per frame: (row error px, disparity px)
 
     # ------------------------------------------------------------------------------------------------
     def process(self, frame) -> VoStep:
@@ -506,6 +529,8 @@ class StereoOdometry:
         guess = corners.copy()
         guess[:, 0] -= self.fx * self.baseline_m / p.stereo_guess_depth_m - self.disparity_offset_px
         in_right, found = self._track(left, right, corners, guess)
+        if not self._stereo_judged:
+            self._judge_stereo_geometry(corners[found], in_right[found])
         keep, disparity, in_right = self._stereo_check(left, right, corners, in_right, found)
         n_new = int(keep.sum())
         new_ids = np.arange(self._next_id, self._next_id + n_new, dtype=np.int64)
@@ -846,6 +871,66 @@ class StereoOdometry:
             )
             self.warnings.append(message)
             log.warning("%s", message)
+
+    def _judge_stereo_geometry(self, left_px: np.ndarray, right_px: np.ndarray) -> None:
+        """Pool one frame's stereo matches (left pixels and KLT's right-image positions, before any check);
+        once enough are pooled, judge the pair once and warn if it looks unrectified, one image given twice or
+        swapped (module doc)."""
+        if len(left_px) == 0:
+            return
+        p = self.params
+        self._stereo_pool.append(
+            (
+                (right_px[:, 1] - left_px[:, 1]).astype(np.float64),
+                (left_px[:, 0] - right_px[:, 0]).astype(np.float64),
+            )
+        )
+        if (
+            len(self._stereo_pool) < _STEREO_JUDGE_FRAMES
+            or sum(len(r) for r, _ in self._stereo_pool) < _STEREO_JUDGE_MATCHES
+        ):
+            return
+        row_px = np.concatenate([r for r, _ in self._stereo_pool])
+        disparity_px = np.concatenate([d for _, d in self._stereo_pool])
+        self._stereo_judged, self._stereo_pool = True, []
+        on_row = np.abs(row_px) < p.stereo_row_tolerance_px
+        negative = int((on_row & (disparity_px < -p.min_disparity_px)).sum())
+        positive = int((on_row & (disparity_px > p.min_disparity_px)).sum())
+        median_row_px = float(np.median(row_px))
+        if on_row.mean() < _ON_ROW_SHARE and abs(median_row_px) < p.stereo_row_tolerance_px:
+            return  # matches scattered over rows both ways: no consistent verdict (nor a fault named wrongly)
+        if on_row.mean() < _ON_ROW_SHARE:
+            self.stereo_fault = "unrectified"
+            message = (
+                f"the stereo pair does not look rectified: the right image's matches of {len(row_px)} corners lie "
+                f"a median {abs(median_row_px):.1f} px {'lower' if median_row_px > 0 else 'higher'} than in the "
+                f"left image, and only {100 * on_row.mean():.0f} % within the {p.stereo_row_tolerance_px:g} px of "
+                "its row a rectified pair allows, so almost no point gets a depth. Rectify the images (and use "
+                "the rectified calibration), or check that the right images belong to this sequence"
+            )
+        elif (
+            np.abs(disparity_px[on_row]) < _IDENTICAL_DISPARITY_PX
+        ).sum() >= _IDENTICAL_SHARE * on_row.sum():
+            self.stereo_fault = "identical"
+            message = (
+                f"the left and right images look identical: {int(on_row.sum())} stereo matches on their row lie "
+                f"at a median disparity of {float(np.median(np.abs(disparity_px[on_row]))):.3f} px, so no point "
+                "gets a depth. The right images must come from the pair's other camera (KITTI: image_1): check "
+                "that the two image folders or topics differ"
+            )
+        elif negative + positive > 0 and negative >= _SWAPPED_SHARE * (negative + positive):
+            self.stereo_fault = "swapped"
+            message = (
+                f"the left and right images look swapped: {negative} of {negative + positive} stereo matches on "
+                "their row lie further right in the right image (a negative disparity), where a rectified pair "
+                "puts every point further left. Give the left camera's images as the left ones (KITTI: image_0 "
+                "left, image_1 right; a stereo folder or bag: swap the two); from this pair the odometry "
+                "measures no depth"
+            )
+        else:
+            return
+        self.warnings.append(message)
+        log.warning("%s", message)
 
     def _image_yaw_rad(self, prev_half: np.ndarray, cur_half: np.ndarray) -> float:
         """Yaw (left positive) that explains the global horizontal image shift between two frames.
