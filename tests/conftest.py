@@ -5,11 +5,13 @@ lives here. Real data lives outside the project, at ../shared/data or $HIPPO_NAV
 from __future__ import annotations
 
 import os
+import shutil
 import signal
 import threading
 from collections.abc import Callable
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 from hippo_nav.datasets import KittiOdometry, StereoFrame
@@ -108,3 +110,15 @@ def disposition():
     yield set_to
     for number, handler in inherited.items():
         signal.signal(number, handler)
+
+
+def as_colour_download(sequence_dir: Path, keep_gray: bool = True) -> None:
+    """Write a KITTI sequence folder's gray pair (image_0, image_1) as KITTI's colour download: image_2 and
+    image_3 as 3-channel PNGs of the same pixels; without `keep_gray` the gray folders are removed."""
+    for gray, colour in (("image_0", "image_2"), ("image_1", "image_3")):
+        (sequence_dir / colour).mkdir()
+        for path in sorted((sequence_dir / gray).iterdir()):
+            image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+            cv2.imwrite(str(sequence_dir / colour / path.name), cv2.merge([image, image, image]))
+        if not keep_gray:
+            shutil.rmtree(sequence_dir / gray)

@@ -49,7 +49,12 @@ class _DatasetPath(argparse.Action):
         namespace.dataset_flags = [*getattr(namespace, "dataset_flags", []), str(option)]
 
 
-LOADER_FLAGS = {"--left-topic": "left_topic", "--right-topic": "right_topic", "--topics": "topics"}
+LOADER_FLAGS = {
+    "--left-topic": "left_topic",
+    "--right-topic": "right_topic",
+    "--topics": "topics",
+    "--cameras": "cameras",
+}
 """Command-line flags of loader options (keywords of `StereoLoader.OPTIONS`)."""
 
 
@@ -126,6 +131,13 @@ def _add_run(sub: argparse._SubParsersAction) -> None:
             (
                 "YAML with left_topic, right_topic and the calibration (CameraInfo topics, or fx, fy, cx, "
                 "cy, baseline_m); flags win over it (default: none)"
+            ),
+        ),
+        "--cameras": (
+            "{gray,color}",
+            (
+                "the stereo pair: gray (image_0, image_1) or color (image_2, image_3, read as gray) "
+                "(default: gray where its folders exist, else color)"
             ),
         ),
     }

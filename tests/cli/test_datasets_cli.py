@@ -9,6 +9,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from conftest import as_colour_download
 from hippo_nav.cli import main
 from hippo_nav.datasets import EurocStereo, KittiOdometry, open_dataset
 from hippo_nav.io import read_kitti_poses, write_tum
@@ -95,6 +96,36 @@ def test_run_on_an_ideal_euroc_rig_and_a_kitti_root(rendered: KittiOdometry, tmp
     assert metrics["frames"] == 5
 
 
+def test_run_on_kitti_s_colour_download(rendered: KittiOdometry, tmp_path: Path) -> None:
+    # The render's pair given as KITTI's colour cameras (image_2, image_3 as colour PNGs; camera 2 6 cm left of
+    # camera 0, so P2 and P3 carry that offset): the same images with the same pair geometry, so the VO moves
+    # exactly as on the gray pair (camera 2's ground truth: tests/datasets/test_datasets_kitti.py).
+    import shutil
+
+    root = tmp_path / "colour"
+    shutil.copytree(rendered.root, root)
+    seq = root / "sequences" / "00"
+    as_colour_download(seq)
+    lines = (seq / "calib.txt").read_text().splitlines()
+    p0, p1 = (np.array(line.split()[1:], float).reshape(3, 4) for line in lines[:2])
+    p2, p3 = p0.copy(), p1.copy()
+    p2[0, 3] += 0.06 * p0[0, 0]
+    p3[0, 3] += 0.06 * p0[0, 0]
+    text = "\n".join(
+        f"{k}: " + " ".join(f"{v:.12e}" for v in m.ravel())
+        for k, m in zip(("P0", "P1", "P2", "P3"), (p0, p1, p2, p3))
+    )
+    (seq / "calib.txt").write_text(text + "\n")
+
+    gray = run(["--dataset", str(root), "--sequence", "00"], tmp_path / "gray")
+    colour = run(["--dataset", str(root), "--sequence", "00", "--cameras", "color"], tmp_path / "color")
+    np.testing.assert_array_equal(
+        read_kitti_poses(tmp_path / "gray" / "trajectory_vo.kitti.txt"),
+        read_kitti_poses(tmp_path / "color" / "trajectory_vo.kitti.txt"),
+    )
+    assert "image_2, image_3" in colour["note"] and gray["frames"] == colour["frames"] == N_FRAMES
+
+
 def test_run_on_a_ros_bag_with_topic_flags(rendered: KittiOdometry, tmp_path: Path) -> None:
     pytest.importorskip("rosbags")
     from rosbags.rosbag2 import Writer
@@ -154,6 +185,7 @@ def test_run_on_a_ros_bag_with_topic_flags(rendered: KittiOdometry, tmp_path: Pa
         (["--dataset", "{folder}", "--dataset-kind", "euroc"], "not an EuRoC/ASL sequence"),
         (["--dataset", "{tmp}"], "no loader recognises this path"),
         (["--dataset", "{folder}", "--stop", "40"], r"frame range [0, 40) is empty or outside the sequence"),
+        (["--dataset", "{folder}", "--cameras", "color"], "--cameras: only for KITTI odometry roots"),
     ],
 )
 def test_bad_input_is_one_line_and_exit_2(folder: Path, tmp_path: Path, capsys, args, phrase) -> None:

@@ -7,6 +7,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+from conftest import as_colour_download
 from hippo_nav.datasets import (
     DatasetError,
     KittiOdometry,
@@ -198,3 +199,75 @@ def test_real_kitti_sequences(shared_data: Path) -> None:
     assert urban.calibration.image_size_px == (1226, 370) and list(urban.frame_indices) == [10, 20, 30]
     with pytest.raises(DatasetError, match="image_1: folder missing"):
         KittiOdometry(root, "00")  # only left images are shared for 00
+
+
+# KITTI's colour cameras: camera 2 about 6 cm left of camera 0 (P2's t_x = +0.06 m), camera 3 a baseline right
+# of camera 2, both with camera 0's intrinsics.
+T2_X_M = 0.06
+COLOUR_CALIB = (
+    f"P0: {FX} 0 {CX} 0 0 {FX} {CY} 0 0 0 1 0\n"
+    f"P1: {FX} 0 {CX} {-FX * 0.54} 0 {FX} {CY} 0 0 0 1 0\n"
+    f"P2: {FX} 0 {CX} {FX * T2_X_M} 0 {FX} {CY} 0 0 0 1 0\n"
+    f"P3: {FX} 0 {CX} {FX * (T2_X_M - BASELINE_M)} 0 {FX} {CY} 0 0 0 1 0\n"
+)
+
+
+def _colour_only(root: Path) -> Path:
+    """`make_kitti`'s tree as KITTI's colour download alone: image_2/image_3 (colour PNGs), P2/P3."""
+    seq = root / "sequences" / "03"
+    as_colour_download(seq, keep_gray=False)
+    (seq / "calib.txt").write_text(COLOUR_CALIB)
+    return root
+
+
+def test_the_colour_download_is_read_as_a_gray_pair_in_camera_2_s_frame(kitti_root: Path) -> None:
+    gray = KittiOdometry(kitti_root, "03")
+    gray_frame, gray_gt = gray[5], gray.ground_truth()
+    colour = KittiOdometry(_colour_only(kitti_root), "03")
+    assert colour.cameras == "color" and "image_2, image_3" in colour.note
+    calib = colour.calibration
+    # The pair's own calibration: camera 2 at the origin, camera 3 a baseline to its right.
+    assert calib.baseline_m == pytest.approx(BASELINE_M)
+    np.testing.assert_array_equal(calib.P0[:, 3], 0.0)
+    np.testing.assert_array_equal(calib.K, gray.calibration.K)
+    frame = colour[5]
+    assert frame.left.ndim == 2 and frame.left.dtype == np.uint8
+    np.testing.assert_array_equal(frame.left, gray_frame.left)
+    np.testing.assert_array_equal(frame.right, gray_frame.right)
+    # Camera 2's ground truth: camera 0's poses moved 6 cm to camera 0's left (x = −0.06 m in its frame).
+    offset = np.linalg.inv(gray_gt) @ colour.ground_truth()
+    np.testing.assert_allclose(offset[:, :3, 3], np.tile([-T2_X_M, 0.0, 0.0], (len(colour), 1)), atol=1e-12)
+    np.testing.assert_allclose(offset[:, :3, :3], np.tile(np.eye(3), (len(colour), 1, 1)), atol=1e-12)
+
+
+def test_the_gray_pair_is_preferred_and_either_can_be_asked_for(kitti_root: Path) -> None:
+    seq = kitti_root / "sequences" / "03"
+    as_colour_download(seq)
+    (seq / "calib.txt").write_text(COLOUR_CALIB)
+    assert KittiOdometry(kitti_root, "03").cameras == "gray"
+    assert KittiOdometry(kitti_root, "03").calibration.baseline_m == pytest.approx(0.54)
+    assert KittiOdometry(kitti_root, "03", cameras="color").calibration.baseline_m == pytest.approx(
+        BASELINE_M
+    )
+    assert open_dataset(kitti_root, "03", cameras="color").cameras == "color"
+
+
+def test_a_missing_or_unknown_pair_says_which_folders_it_needs(kitti_root: Path) -> None:
+    with pytest.raises(
+        DatasetError, match=r"cameras = 'color' needs image_2 and image_3; present: image_0, image_1"
+    ):
+        KittiOdometry(kitti_root, "03", cameras="color")
+    with pytest.raises(DatasetError, match=r"cameras = 'rgb': use one of 'gray', 'color'"):
+        KittiOdometry(kitti_root, "03", cameras="rgb")
+    _colour_only(kitti_root)
+    (kitti_root / "sequences" / "03" / "calib.txt").write_text(CALIB)  # no P3 line
+    with pytest.raises(DatasetError, match="no P3 line; P2 .left. and P3 .right. are required"):
+        KittiOdometry(kitti_root, "03")
+    for folder in ("image_2", "image_3"):
+        for path in (kitti_root / "sequences" / "03" / folder).iterdir():
+            path.unlink()
+        (kitti_root / "sequences" / "03" / folder).rmdir()
+    with pytest.raises(
+        DatasetError, match=r"image_0: folder missing; .* or image_2 and image_3 \(its colour"
+    ):
+        KittiOdometry(kitti_root, "03")

@@ -194,3 +194,10 @@ def test_the_shipped_whole_sequence_benchmark_is_the_nineteen_runs_of_the_old_sc
     for sequence in ("00", "05"):
         assert {(sequence, "file", "Geometric"), (sequence, "file", "RatSlam")} <= variants
     assert {r.odometry.align for r in runs if r.sequence == "00" and r.odometry.kind == "file"} == {"start"}
+
+
+def test_loader_options_reach_every_run(tmp_path):
+    # A sweep that dropped `--cameras color` would run every sequence on the other camera pair.
+    space = build_space(dataset={"dataset": str(tmp_path), "cameras": "color", "left_topic": "/cam0"})
+    assert space.dataset.options == (("cameras", "color"), ("left_topic", "/cam0"))
+    assert space.dataset.as_dict()["options"] == {"cameras": "color", "left_topic": "/cam0"}

@@ -3,10 +3,19 @@
 ```
 <root>/sequences/XX/image_0/NNNNNN.png   left, 8-bit gray, rectified
 <root>/sequences/XX/image_1/NNNNNN.png   right
+<root>/sequences/XX/image_2/NNNNNN.png   left colour camera (KITTI's colour download), rectified
+<root>/sequences/XX/image_3/NNNNNN.png   right colour camera
 <root>/sequences/XX/calib.txt            lines "P0: 12 numbers" … "P3: …" (row-major 3×4), optional "Tr: …"
 <root>/sequences/XX/times.txt            one timestamp (s) per frame of the whole sequence
-<root>/poses/XX.txt                      ground truth, sequences 00–10 only (see hippo_nav.io.poses)
+<root>/poses/XX.txt                      ground truth of camera 0, sequences 00–10 only (hippo_nav.io.poses)
 ```
+
+Cameras (`cameras`): `gray` reads image_0/image_1 with P0/P1; `color` reads image_2/image_3 (converted to
+gray) with P2/P3; None (the default) takes the gray pair where both of its folders exist, else the colour
+pair — KITTI ships the two as separate downloads, and a user often has only one. The colour pair's calibration
+is given in its left camera's frame (P2's translation moved into P3's, so `P0`/`P1` of the calibration are
+the pair used), and its ground truth is camera 2's: camera 0's poses with camera 2's offset (about 6 cm to
+the left, from P2) applied, `world` still camera 0 at frame 0.
 
 Frames load lazily: constructing the dataset reads and checks calib.txt, times.txt, the ground truth (when
 `poses/XX.txt` exists) and one image (for the image size), so a malformed file fails before any frame is
@@ -38,8 +47,16 @@ from hippo_nav.io.poses import read_kitti_poses
 _INTRINSICS_TOLERANCE = 1e-6
 
 
-def read_calibration(calib_path: Path, image_size_px: tuple[int, int]) -> StereoCalibration:
-    """Parse a KITTI `calib.txt`; P0 and P1 are required, P2/P3 optional, other keys (Tr) ignored."""
+CAMERAS = {"gray": (0, 1), "color": (2, 3)}
+"""KITTI's stereo pairs: (left, right) camera numbers (image_N folders, PN calibration lines)."""
+
+
+def read_calibration(
+    calib_path: Path, image_size_px: tuple[int, int], cameras: str = "gray"
+) -> StereoCalibration:
+    """Parse a KITTI `calib.txt`; the pair's two lines are required (P0, P1 for `gray`, P2, P3 for `color`),
+    the others optional, other keys (Tr) ignored. For `color` the calibration is put in camera 2's frame (module
+    doc): its `P0`/`P1` are P2 and P3 less P2's translation."""
     if not calib_path.is_file():
         raise DatasetError(f"{calib_path}: calibration file not found (a KITTI sequence needs calib.txt)")
     matrices: dict[str, np.ndarray] = {}
@@ -73,22 +90,41 @@ def read_calibration(calib_path: Path, image_size_px: tuple[int, int]) -> Stereo
                 number,
             )
         matrices[key] = matrix
-    for required in ("P0", "P1"):
+    left_key, right_key = (f"P{n}" for n in CAMERAS[cameras])
+    for required in (left_key, right_key):
         if required not in matrices:
-            raise file_error(calib_path, f"no {required} line; P0 (left) and P1 (right) are required")
-    p0, p1 = matrices["P0"], matrices["P1"]
-    if np.abs(p0[:, :3] - p1[:, :3]).max() > _INTRINSICS_TOLERANCE * p0[0, 0]:
-        raise file_error(
-            calib_path, "P0 and P1 have different intrinsics: the images are not a rectified pair"
-        )
-    if -p1[0, 3] / p1[0, 0] <= 0:
+            raise file_error(
+                calib_path, f"no {required} line; {left_key} (left) and {right_key} (right) are required"
+            )
+    left, right = matrices[left_key], matrices[right_key]
+    if np.abs(left[:, :3] - right[:, :3]).max() > _INTRINSICS_TOLERANCE * left[0, 0]:
         raise file_error(
             calib_path,
-            f"P1[0,3] = {p1[0, 3]:g} gives a baseline of {-p1[0, 3] / p1[0, 0]:g} m; P1[0,3] must be negative "
+            f"{left_key} and {right_key} have different intrinsics: the images are not a rectified pair",
+        )
+    # In the left camera's frame: P = K[I|t] is linear in t, so the right camera's t less the left's.
+    relative = right.copy()
+    relative[:, 3] -= left[:, 3]
+    baseline_m = -relative[0, 3] / relative[0, 0]
+    if baseline_m <= 0:
+        shown = f"{right_key}[0,3]" if left_key == "P0" else f"{right_key}[0,3] - {left_key}[0,3]"
+        raise file_error(
+            calib_path,
+            f"{shown} = {relative[0, 3]:g} gives a baseline of {baseline_m:g} m; {shown} must be negative "
             "(right camera at +baseline along x)",
         )
-    calibration = StereoCalibration(p0, p1, matrices.get("P2"), matrices.get("P3"), image_size_px)
+    origin = left.copy()
+    origin[:, 3] = 0.0
+    calibration = StereoCalibration(origin, relative, matrices.get("P2"), matrices.get("P3"), image_size_px)
     return check_calibration(calibration, str(calib_path))
+
+
+def camera0_from_camera(projection: np.ndarray) -> np.ndarray:
+    """(4, 4) pose in camera 0's frame of the rectified camera whose projection is `projection` = K[I|t]
+    (a KITTI PN line): it maps camera 0's points X to X + t, so the camera sits at −t."""
+    out = np.eye(4)
+    out[:3, 3] = -np.linalg.solve(projection[:, :3], projection[:, 3])
+    return out
 
 
 def read_times(times_path: Path) -> np.ndarray:
@@ -138,7 +174,7 @@ class KittiOdometry(StereoLoader):
     KIND = "kitti"
     TITLE = "KITTI odometry roots"
     LAYOUT = "for KITTI pass the folder that holds sequences/ and poses/"
-    OPTIONS = ("start", "stop", "stride", "available_only")
+    OPTIONS = ("start", "stop", "stride", "available_only", "cameras")
     DEFAULT_SEQUENCE = "00"
 
     def __init__(
@@ -149,6 +185,7 @@ class KittiOdometry(StereoLoader):
         stop: int | None = None,
         stride: int = 1,
         available_only: bool = True,
+        cameras: str | None = None,
     ) -> None:
         super().__init__(stride)
         self.root = Path(root)
@@ -165,11 +202,8 @@ class KittiOdometry(StereoLoader):
             raise DatasetError(f"{self.sequence_dir}: sequence not found; present: {', '.join(present)}")
         if stride < 1:
             raise DatasetError(f"stride must be >= 1, got {stride}")
-        for camera in ("image_0", "image_1"):
-            if not (self.sequence_dir / camera).is_dir():
-                raise DatasetError(
-                    f"{self.sequence_dir / camera}: folder missing; a stereo sequence needs image_0 and image_1"
-                )
+        self.cameras = self._choose_cameras(cameras)
+        self._numbers = CAMERAS[self.cameras]
 
         all_times_s = read_times(self.sequence_dir / "times.txt")
         self.frame_indices = self._select_frames(len(all_times_s), start, stop, stride, available_only)
@@ -177,18 +211,54 @@ class KittiOdometry(StereoLoader):
 
         first = read_gray(self._image_path(0, int(self.frame_indices[0])))
         height, width = first.shape
-        self.calibration = read_calibration(self.sequence_dir / "calib.txt", (width, height))
+        calib_path = self.sequence_dir / "calib.txt"
+        self.calibration = read_calibration(calib_path, (width, height), self.cameras)
         self._poses_path = self.root / "poses" / f"{self.sequence}.txt"
         self._ground_truth = self._read_ground_truth(len(all_times_s))  # the whole file (every frame)
+        if self.cameras == "color":
+            assert self.calibration.P2 is not None  # the colour pair's calibration needs its P2 line
+            if self._ground_truth is not None:
+                self._ground_truth = self._ground_truth @ camera0_from_camera(self.calibration.P2)
+            used = "the colour cameras (image_2, image_3, read as gray)"
+            self.note = f"{self.note}; {used}" if self.note else f"sequence {self.sequence}: {used}"
         self._finish_note()
 
+    def _choose_cameras(self, cameras: str | None) -> str:
+        """The pair to read (module doc): the one asked for, whose folders must exist, else the first present."""
+        if cameras is not None and cameras not in CAMERAS:
+            raise DatasetError(
+                f"cameras = {cameras!r}: use one of {', '.join(map(repr, CAMERAS))} (or None: either)"
+            )
+        present = {
+            name: all((self.sequence_dir / f"image_{n}").is_dir() for n in numbers)
+            for name, numbers in CAMERAS.items()
+        }
+        if cameras is not None and not present[cameras]:
+            left, right = CAMERAS[cameras]
+            raise DatasetError(
+                f"{self.sequence_dir}: cameras = {cameras!r} needs image_{left} and image_{right}; present: "
+                f"{', '.join(sorted(p.name for p in self.sequence_dir.glob('image_*'))) or 'no image folder'}"
+            )
+        chosen = cameras or next((name for name, here in present.items() if here), None)
+        if chosen is None:
+            missing = next(
+                f"image_{n}" for n in CAMERAS["gray"] if not (self.sequence_dir / f"image_{n}").is_dir()
+            )
+            raise DatasetError(
+                f"{self.sequence_dir / missing}: folder missing; a stereo sequence needs image_0 and image_1 (KITTI's "
+                "gray download) or image_2 and image_3 (its colour download)"
+            )
+        return chosen
+
     def _image_path(self, camera: int, frame: int) -> Path:
-        return self.sequence_dir / f"image_{camera}" / f"{frame:06d}.png"
+        """The image of the pair's left (`camera` 0) or right (1) camera."""
+        return self.sequence_dir / f"image_{self._numbers[camera]}" / f"{frame:06d}.png"
 
     def _image_numbers(self, camera: int) -> set[int]:
-        """Frame numbers of the images in `image_<camera>` (one directory listing, not a stat per frame)."""
+        """Frame numbers of the pair's left (0) or right (1) images (one directory listing, not a stat per
+        frame)."""
         numbers = set()
-        for entry in os.scandir(self.sequence_dir / f"image_{camera}"):
+        for entry in os.scandir(self.sequence_dir / f"image_{self._numbers[camera]}"):
             stem, _, suffix = entry.name.partition(".")
             if suffix == "png" and stem.isdigit():
                 numbers.add(int(stem))
@@ -210,7 +280,7 @@ class KittiOdometry(StereoLoader):
         if beyond:
             self.frames_without_timestamp = beyond
             self.warnings.append(
-                f"{beyond} image(s) in image_0 have no timestamp ({times} lists {n_frames} frames): "
+                f"{beyond} image(s) in image_{self._numbers[0]} have no timestamp ({times} lists {n_frames} frames): "
                 "they are not used; complete times.txt to use them"
             )
         if stop is not None or not available_only:
@@ -225,8 +295,8 @@ class KittiOdometry(StereoLoader):
         present = np.array([int(f) in left and int(f) in right for f in wanted], dtype=bool)
         if not present.any():
             raise DatasetError(
-                f"{self.sequence_dir}: no frame from {lo} on has both image_0 and image_1 images; "
-                "this loader needs stereo"
+                f"{self.sequence_dir}: no frame from {lo} on has both image_{self._numbers[0]} and "
+                f"image_{self._numbers[1]} images; this loader needs stereo"
             )
         frames = wanted[present]
         inside = wanted[(wanted > frames[0]) & (wanted < frames[-1])]

@@ -47,7 +47,9 @@ MAX_SEED = 2**31 - 1
 LESION_MODULES = ("ventral", "intermediate", "dorsal")
 AXES = ("set", "seeds", "lesion", "sequence", "odometry")
 """The axes a sweep file or the command line may give."""
-DATASET_KEYS = ("dataset", "dataset_kind", "start", "stop", "stride", "left_topic", "right_topic", "topics")
+LOADER_OPTION_KEYS = ("left_topic", "right_topic", "topics", "cameras")
+"""Loader options a sweep passes on (`StereoLoader.OPTIONS`; the command line's `cli.LOADER_FLAGS`)."""
+DATASET_KEYS = ("dataset", "dataset_kind", "start", "stop", "stride", *LOADER_OPTION_KEYS)
 FILE_KEYS = {*AXES, *DATASET_KEYS, "config", "config_file", "out", "space"}
 SLUG_MAX_CHARS = 72
 _KEY = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*$")
@@ -539,7 +541,7 @@ def _dataset_input(flags: dict[str, Any]) -> DatasetInput:
     kind = flags.get("dataset_kind")
     if kind is not None and kind not in LOADERS:
         raise HippoNavError(f"dataset_kind {kind!r}: choose from {', '.join(LOADERS)}")
-    options = {k: str(flags[k]) for k in ("left_topic", "right_topic", "topics") if flags.get(k) is not None}
+    options = {k: str(flags[k]) for k in LOADER_OPTION_KEYS if flags.get(k) is not None}
     if "topics" in options:
         options["topics"] = str(_absolute(options["topics"]))
     if path is None and (kind is not None or options):
