@@ -74,16 +74,16 @@ _WARN_OFFSET_PX = 0.3
 # The stereo pair is judged once this many new-corner stereo matches from this many frames are pooled. Pooled
 # so, real KITTI 06 and 01 (from frames 0 and 30) and the renders (00, 02, 05, 06, 08 from frames 0 and 1000;
 # `mild`, `strong`) put 77–99 % of KLT's right-image matches within the row tolerance, median row error at most
-# 0.38 px; of those with a clear disparity at most 3.8 % negative; at most 1.7 % within 0.1 px of no disparity.
-# A swapped pair: 100 % negative; a pair 6 px off its rows: 1 % on their row; one image given twice: 100 % at
-# no disparity (docs/vo.md, "A swapped or unrectified pair").
+# 0.38 px; of those with a clear disparity at most 3.8 % negative; at most 1.4 % within 0.01 px of where they
+# are in the left image (the renders' sky, at infinity; real: none). A swapped pair: 100 % negative; a pair 6 px off its rows: 1 % on their row; one image
+# given twice: 100 % within 0.01 px (docs/vo.md, "A swapped or unrectified pair").
 _STEREO_JUDGE_MATCHES = 300
 _STEREO_JUDGE_FRAMES = 3
 _SWAPPED_SHARE = 0.8  # of the matches on their row with a clear disparity, at least this share negative
 _ON_ROW_SHARE = 0.5  # an unrectified pair: fewer matches on their row than this share, and a median row
 # error beyond the row tolerance
-_IDENTICAL_DISPARITY_PX = 0.1  # one image given as both: at least `_IDENTICAL_SHARE` of the matches on
-_IDENTICAL_SHARE = 0.5  # their row lie within this disparity
+_IDENTICAL_PX = 0.01  # one image given as both: at least `_IDENTICAL_SHARE` of the matches lie within this
+_IDENTICAL_SHARE = 0.5  # of where they are in the left image, in both coordinates (KLT converges exactly)
 
 STATUSES = ("first", "ok", "low_texture", "rejected")
 """`VoStep.status`: first frame (identity); a measured step; too few features, tracks or inliers (prior
@@ -909,14 +909,14 @@ class StereoOdometry:
                 "the rectified calibration), or check that the right images belong to this sequence"
             )
         elif (
-            np.abs(disparity_px[on_row]) < _IDENTICAL_DISPARITY_PX
-        ).sum() >= _IDENTICAL_SHARE * on_row.sum():
+            unmoved := int(((np.abs(disparity_px) < _IDENTICAL_PX) & (np.abs(row_px) < _IDENTICAL_PX)).sum())
+        ) >= _IDENTICAL_SHARE * len(row_px):
             self.stereo_fault = "identical"
             message = (
-                f"the left and right images look identical: {int(on_row.sum())} stereo matches on their row lie "
-                f"at a median disparity of {float(np.median(np.abs(disparity_px[on_row]))):.3f} px, so no point "
-                "gets a depth. The right images must come from the pair's other camera (KITTI: image_1): check "
-                "that the two image folders or topics differ"
+                f"the left and right images look identical: {unmoved} of {len(row_px)} stereo matches lie within "
+                f"{_IDENTICAL_PX:g} px of where they are in the left image, so no point gets a depth. The right "
+                "images must come from the pair's other camera (KITTI: image_1): check that the two image "
+                "folders or topics differ"
             )
         elif negative + positive > 0 and negative >= _SWAPPED_SHARE * (negative + positive):
             self.stereo_fault = "swapped"
