@@ -33,7 +33,9 @@ from hippo_nav.io.errors import DatasetError
 
 @dataclass(frozen=True)
 class StereoCalibration:
-    """Projection matrices of a rectified stereo rig (3×4 float64) and the image size of cameras 0/1."""
+    """Projection matrices of a rectified stereo rig (3×4 float64) and the image size of its images. `P0`, `P1`
+    are the pair the odometry uses, left and right (for KITTI's colour pair, P2 and P3 put in camera 2's frame);
+    `P2`, `P3` are KITTI's colour-camera lines as written, when the file has them."""
 
     P0: np.ndarray
     P1: np.ndarray
