@@ -21,7 +21,7 @@ from hippo_nav.engine import EngineConfig, SpatialMemory, ViewPatterns
 from hippo_nav.io import DatasetError
 from hippo_nav.pipeline import Pipeline, config_from_dict
 from hippo_nav.synthetic import DEMO_SEQUENCE, demo_sequence
-from hippo_nav.vo import StereoOdometry
+from hippo_nav.vo import ReplayOdometry, StereoOdometry
 
 
 def _one_line_error(capsys) -> str:
@@ -529,3 +529,23 @@ def test_a_stride_is_not_taken_for_another_time_unit(demo):
     strided = KittiOdometry(demo_sequence(), DEMO_SEQUENCE, stride=60)
     assert np.median(np.diff(strided.timestamps_s)) > 5.0
     Pipeline(strided, config_from_dict(QUIET))
+
+
+def test_a_stride_longer_than_the_gap_limit_is_no_gap(tmp_path):
+    # Every 20th frame of a 10 Hz sequence: 2 s between the frames run. `max_gap_s` (1 s) is per sequence
+    # frame; unscaled, every frame was flagged as a time gap and its motion integrated over 1 s, not 2.
+    # The ground truth is replayed as the odometry (the VO does not track 20 frames' motion at 96 rows).
+    strided = KittiOdometry(demo_sequence(), DEMO_SEQUENCE, stop=121, stride=20)
+    truth = strided.root / "poses" / f"{DEMO_SEQUENCE}.txt"
+    result = Pipeline(strided, config_from_dict(QUIET), odometry=ReplayOdometry(truth, strided)).run(
+        tmp_path / "out"
+    )
+    assert result.metrics["data"]["time_gaps"] == 0
+    frames = result.record.frames
+    assert all(f.data_flags == "" for f in frames)
+    assert all(f.motion_flag == "ok" for f in frames[1:])
+    # The engine's speed is the step over the 2 s between the frames run.
+    vo = result.vo_world_from_camera
+    for k, f in enumerate(frames[1:], start=1):
+        step_m = np.linalg.norm(vo[k, [0, 2], 3] - vo[k - 1, [0, 2], 3])
+        assert abs(f.speed_m_s) == pytest.approx(step_m / 2.0, rel=0.02)

@@ -185,8 +185,9 @@ class MotionLimits(_Section):
     max_gap_s: float = Field(
         1.0,
         gt=0.0,
-        description="a longer time between frames is a gap: flagged, and the networks integrate the "
-        "odometry's step over this time at most instead of the whole gap",
+        description="a longer time between sequence frames is a gap (times the stride for a run of every "
+        "n-th frame): flagged, and the networks integrate the odometry's step over this time at most instead "
+        "of the whole gap",
     )
 
 

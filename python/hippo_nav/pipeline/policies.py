@@ -325,8 +325,11 @@ class MotionLimiter:
     """Drives the engine with the odometry's planar step (module doc). The engine gets `yaw_rate = Δyaw/dt`
     and `speed = ±|Δxy|/dt` (negative when reversing)."""
 
-    def __init__(self, limits: MotionLimits) -> None:
+    def __init__(self, limits: MotionLimits, stride: int = 1) -> None:
         self.limits = limits
+        # `max_gap_s` is per sequence frame: a run of every 20th frame of a 10 Hz sequence has 2 s between
+        # its frames, which is no gap (unscaled, every frame was flagged and its motion squeezed into 1 s).
+        self.max_gap_s = limits.max_gap_s * max(int(stride), 1)
 
     def drive(
         self,
@@ -342,10 +345,10 @@ class MotionLimiter:
         if dt_s <= 0:
             return engine.readout(), Motion(0.0, 0.0, flag)
         limits = self.limits
-        if dt_s > limits.max_gap_s:
+        if dt_s > self.max_gap_s:
             # Integrate the measured step over the longest plausible frame time, not over the whole gap
             # (the networks cannot represent slow motion over minutes, and need not).
-            dt_s = limits.max_gap_s
+            dt_s = self.max_gap_s
             flag = "gap"
         forward_m, left_m, yaw_rad = (float(v) for v in planar_step)
         yaw_rate = yaw_rad / dt_s

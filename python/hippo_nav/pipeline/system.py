@@ -128,8 +128,8 @@ class SlamSystem:
         self.closure = (
             closure if closure is not None else parts.make_closure_proposer(self.config, calibration)
         )
-        self.limits = MotionLimiter(self.config.limits)
         self.stride = max(int(stride), 1)
+        self.limits = MotionLimiter(self.config.limits, self.stride)
         self.frames = 0  # frames processed
         self.map_revision = 0  # changes whenever the map may have changed (a frame, a correction)
         self._vo_pose = np.eye(4)
@@ -455,7 +455,7 @@ class SlamSystem:
             if skipped > 0:
                 flags.append(f"skipped_frames:{skipped}")
                 log.warning("frame %s: %d sequence frame(s) before it are missing", frame.index, skipped)
-        if dt_s > self.config.limits.max_gap_s:
+        if dt_s > self.limits.max_gap_s:
             flags.append(f"time_gap:{dt_s:.3g}s")
             log.warning(
                 "frame %s: %.3g s since the previous frame (a gap); its motion is not extrapolated",
