@@ -15,6 +15,9 @@ order (its cells are the current passage), then the second (the first pass's cel
   recognised *and* whose stereo measurement against the nearest first-pass keyframe (the vertex the odometry
   would predict) is accepted, and the largest position (m) and heading (°) errors of the accepted
   measurements against the ground truth.
+- **proximity: closed**: the share of second-pass frames, recognised or not, whose measurement against that
+  keyframe is accepted at the proximity bar (`closure.proximity_min_inliers`: the map's loop gate proposes
+  the vertex nearest to where the odometry puts the agent, docs/map.md), and the largest errors.
 
 Writes `view_recognition.md` and `view_recognition.json` under `--out` (renders are kept there and reused).
 Not a test (no assertions; pytest does not collect it): a reproducible experiment.
@@ -75,8 +78,10 @@ def observe_passes(cells, frames, street) -> list[tuple[int, int | None]]:
     return claims
 
 
-def closures(frames, street, claims, calibration) -> list[dict]:
-    """Stereo measurement of each recognised second-pass frame against the nearest first-pass keyframe."""
+def closures(frames, street, claims, calibration, proximity: bool = False) -> list[dict]:
+    """Stereo measurement of each recognised second-pass frame against the nearest first-pass keyframe; with
+    `proximity`, of every second-pass frame, recognised or not, at the proximity bar (`closure.proximity`:
+    the map's gate proposes the vertex nearest to where the odometry puts the agent)."""
     from hippo_nav.closure import ClosureConfig, KeyframeExtractor, LoopMeasurer
     from hippo_nav.geometry import planar_from_pose, wrap_angle
 
@@ -93,11 +98,13 @@ def closures(frames, street, claims, calibration) -> list[dict]:
     rows = []
     n_first = len(street.first_pass)
     for k, (place, claimed) in enumerate(claims):
-        if claimed is None or abs(claimed - place) * STEP_M > PLACE_TOLERANCE_M:
+        recognised = claimed is not None and abs(claimed - place) * STEP_M <= PLACE_TOLERANCE_M
+        if not (recognised or proximity):
             rows.append({"closed": False})
             continue
         current = n_first + k
-        measurement, why = measurer.measure(keyframe(place), keyframe(current))
+        bar = config.proximity_min_inliers if proximity else None
+        measurement, why = measurer.measure(keyframe(place), keyframe(current), bar)
         if measurement is None:
             rows.append({"closed": False, "why": why})
             continue
@@ -142,6 +149,14 @@ def one(level: str, lateral_m: float, heading_deg: float, out: Path) -> dict:
             row[name]["max_position_error_m"] = max(errors, default=None)
             row[name]["max_yaw_error_deg"] = max((m["yaw_error_deg"] for m in accepted), default=None)
             row[name]["max_chi2"] = max((m["chi2"] for m in accepted), default=None)
+            nearest = closures(frames, street, claims, dataset.calibration, proximity=True)
+            accepted = [m for m in nearest if m["closed"]]
+            row["proximity"] = {
+                "closed": len(accepted) / len(nearest),
+                "max_position_error_m": max((m["position_error_m"] for m in accepted), default=None),
+                "max_yaw_error_deg": max((m["yaw_error_deg"] for m in accepted), default=None),
+                "max_chi2": max((m["chi2"] for m in accepted), default=None),
+            }
     print(json.dumps(row), file=sys.stderr, flush=True)
     return row
 
@@ -153,16 +168,18 @@ def markdown(rows: list[dict]) -> str:
     lines = [
         (
             "| appearance | lateral offset (m) | heading change (°) | words: recognised / false | words: closed "
-            "| words: median / max error (m), max (°) | template: recognised / false |"
+            "| words: median / max error (m), max (°) | proximity: closed | proximity: max error (m), (°) "
+            "| template: recognised / false |"
         ),
-        "|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
-        w, t = r["words"], r["template"]
+        w, t, p = r["words"], r["template"], r["proximity"]
         lines.append(
             f"| {r['level']} | {r['lateral_m']:g} | {r['heading_deg']:g} | {w['recognised']:.2f} / {w['false']} "
             f"| {w['closed']:.2f} | {fmt(w.get('median_position_error_m'))} / {fmt(w['max_position_error_m'])}, "
             f"{fmt(w['max_yaw_error_deg'], '.1f')} "
+            f"| {p['closed']:.2f} | {fmt(p['max_position_error_m'])}, {fmt(p['max_yaw_error_deg'], '.1f')} "
             f"| {t['recognised']:.2f} / {t['false']} |"
         )
     return "\n".join(lines) + "\n"

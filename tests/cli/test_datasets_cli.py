@@ -108,11 +108,14 @@ def test_run_on_kitti_s_colour_download(rendered: KittiOdometry, tmp_path: Path)
     as_colour_download(seq)
     lines = (seq / "calib.txt").read_text().splitlines()
     p0, p1 = (np.array(line.split()[1:], float).reshape(3, 4) for line in lines[:2])
+    # The offset (fx · 0.06 m) is rounded to 1/64 px and written in full, so that P2 − P3 is P0 − P1 to the
+    # bit: with 12 digits the baseline differed in its 13th, which moved the VO by 2e-5 m in five frames.
+    shift_px = np.round(0.06 * p0[0, 0] * 64.0) / 64.0
     p2, p3 = p0.copy(), p1.copy()
-    p2[0, 3] += 0.06 * p0[0, 0]
-    p3[0, 3] += 0.06 * p0[0, 0]
+    p2[0, 3] += shift_px
+    p3[0, 3] += shift_px
     text = "\n".join(
-        f"{k}: " + " ".join(f"{v:.12e}" for v in m.ravel())
+        f"{k}: " + " ".join(f"{v:.17g}" for v in m.ravel())
         for k, m in zip(("P0", "P1", "P2", "P3"), (p0, p1, p2, p3))
     )
     (seq / "calib.txt").write_text(text + "\n")

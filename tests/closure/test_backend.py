@@ -83,6 +83,40 @@ def test_a_drifting_odometry_on_a_loop_is_corrected_to_less_than_half_its_error(
     assert errors["corrected"]["ate_3d_m"] < 0.5 * errors["vo"]["ate_3d_m"]
 
 
+def test_a_revisit_the_view_cells_miss_is_closed_by_proximity(demo, tmp_path):
+    # The demo loop with view cells that never recognise an older place (a revisit whose look changed too
+    # much, as at the `strong` appearance level): only the proximity measurement (the vertex nearest to
+    # where the odometry puts the agent, inside the loop gate, measured by stereo PnP) can close the loop.
+    truth = demo.ground_truth()
+    drifted = drifting_odometry(truth, scale_error=0.01, yaw_bias_deg_per_frame=0.05)
+    blind = {**QUIET, "view_words": {"min_inliers": 20000}}
+    results = {}
+    for proximity in (False, True):
+        config = config_from_dict({**blind, "closure": {"proximity": proximity}})
+        replay = _replay(tmp_path, demo, drifted, f"odometry_{proximity}.txt")
+        results[proximity] = Pipeline(demo, config, odometry=replay).run(None)
+    without, with_proximity = results[False].metrics, results[True].metrics
+    assert without["loop_closures"] == 0, without["closure_attempts"]
+    quality = with_proximity["closure_quality"]
+    assert quality["closures"] >= 3 and quality["false_closures"] == 0, quality
+    notes = with_proximity["closure_attempts"]
+    assert notes.get("accepted_proximity", 0) == quality["closures"] and "accepted" not in notes, notes
+    errors = with_proximity["errors"]
+    assert errors["corrected"]["ate_2d_m"] < 0.5 * errors["vo"]["ate_2d_m"], errors
+
+
+def test_proximity_is_not_tried_beyond_its_radius(demo, tmp_path):
+    # Where the odometry puts no gated vertex within `proximity_radius_m`, nothing is measured (the cost
+    # guard: before a loop closes, the gate holds vertices tens of metres away). The only notes left are
+    # the view cells' own: a familiar cell of the passage the agent is on has no candidate.
+    config = config_from_dict(
+        {**QUIET, "view_words": {"min_inliers": 20000}, "closure": {"proximity_radius_m": 0.05}}
+    )
+    metrics = Pipeline(demo, config).run(None).metrics
+    assert metrics["loop_closures"] == 0
+    assert set(metrics["closure_attempts"]) <= {"no_candidate"}, metrics["closure_attempts"]
+
+
 def test_a_closure_measures_a_known_offset():
     # Two stereo frames of one street: the second camera 1.2 m to the left, 2.5 m back and turned 6°.
     size, baseline = (320, 96), 0.537

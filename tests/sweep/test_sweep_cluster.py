@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import json
 import os
+import secrets
 import signal
 import socket
 import subprocess
@@ -67,7 +68,9 @@ def ray_head(env: dict[str, str], log: Path, num_cpus: int = 2) -> Iterator[str]
 
 
 def test_a_sweep_on_a_cluster_started_on_loopback(tmp_path):
-    env = {**os.environ, **LOOPBACK_ENV}
+    # The head and the sweep share a token of the test's own: with none given, Ray reads ~/.ray/auth_token,
+    # which a fresh machine does not have yet (`ray start` then ended with "no authentication token").
+    env = {**os.environ, **LOOPBACK_ENV, "RAY_AUTH_TOKEN": secrets.token_hex(32)}
     out = tmp_path / "sweep"
     with ray_head(env, tmp_path / "head.log") as address:
         done = subprocess.run(

@@ -251,7 +251,7 @@ def test_a_shifted_right_image_is_reported_and_the_disparity_offset_corrects_it(
 @pytest.mark.data
 def test_real_kitti_01_disparity_offset_and_the_bias_warning(shared_data):
     """KITTI 01's shared frames with calib.txt as given and the self-calibration off: the VO warns that
-    the stereo pair looks biased (t_rel ~15 %); `disparity_offset_px = 1.5` brings t_rel to ~2 % (the
+    the stereo pair looks biased (t_rel 8–15 %); `disparity_offset_px = 1.5` brings t_rel to ~2 % (the
     camera-3 baseline of the test above to ~2.3 %)."""
     data = KittiOdometry(shared_data / "kitti_odometry", "01")
     frames = [data[i] for i in range(len(data))]
@@ -273,5 +273,5 @@ def test_real_kitti_01_disparity_offset_and_the_bias_warning(shared_data):
         ]
         if offset_px == 0.0:
             assert len(vo.warnings) == 1 and vo.stereo_bias_px < -0.03
-    assert t_rel[0.0] > 10.0
+    assert t_rel[0.0] > 8.0
     assert t_rel[1.5] <= 2.5

@@ -78,6 +78,25 @@ class ClosureConfig(ConfigSection):
     closure_spacing_m: float = Field(
         3.0, ge=0.0, description="travel (m) between accepted closures; closer ones add little"
     )
+    proximity: bool = Field(
+        True,
+        description="a frame whose familiar view gives no closure (or that has none) also measures the nearest "
+        "vertex inside the map's loop gate: closes revisits whose look changed too much for the view cells",
+    )
+    proximity_min_inliers: int = Field(
+        15,
+        ge=6,
+        le=20000,
+        description="PnP inliers a proximity measurement needs (the gate has already placed the vertex; "
+        "unrelated real and rendered places give at most 9, docs/views.md)",
+    )
+    proximity_radius_m: float = Field(
+        8.0,
+        gt=0.0,
+        description="a proximity measurement is tried only when the odometry puts the nearest gated vertex "
+        "this close: `max_distance_m` plus the odometry's likely error (farther ones were 90 % of the failed "
+        "tries on the 06 render, and their cost)",
+    )
     relocalisation_min_inliers: int = Field(
         60,
         ge=6,

@@ -79,14 +79,17 @@ class LoopMeasurer:
         self.baseline_m = float(calibration.baseline_m)
         self._matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
 
-    def measure(self, target: Keyframe, current: Keyframe) -> tuple[LoopMeasurement | None, str]:
-        """(measurement, "ok") or (None, why not)."""
+    def measure(
+        self, target: Keyframe, current: Keyframe, min_inliers: int | None = None
+    ) -> tuple[LoopMeasurement | None, str]:
+        """(measurement, "ok") or (None, why not); `min_inliers`: the bar (None: the config's)."""
         cfg = self.config
-        if len(target) < cfg.min_inliers or len(current) < cfg.min_inliers:
+        bar = cfg.min_inliers if min_inliers is None else int(min_inliers)
+        if len(target) < bar or len(current) < bar:
             return None, "too_few_features"
         pairs = self._matcher.knnMatch(target.descriptors, current.descriptors, k=2)
         good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < cfg.ratio_test * p[1].distance]
-        if len(good) < cfg.min_inliers:
+        if len(good) < bar:
             return None, "too_few_matches"
         object_points = target.points_m[[m.queryIdx for m in good]].astype(np.float64)
         image_points = current.pixels_px[[m.trainIdx for m in good]].astype(np.float64)
@@ -101,7 +104,7 @@ class LoopMeasurer:
             flags=cv2.SOLVEPNP_EPNP,
         )
         n_inliers = 0 if inliers is None else len(inliers)
-        if not found or n_inliers < cfg.min_inliers or n_inliers < cfg.min_inlier_ratio * len(good):
+        if not found or n_inliers < bar or n_inliers < cfg.min_inlier_ratio * len(good):
             return None, "too_few_inliers"
         idx = inliers.ravel()
         cur_from_key = np.eye(4)

@@ -19,6 +19,17 @@ stereo frame measures the nearest `candidates_per_frame` against their stored ke
 `LoopMeasurer`) and the first verified one is proposed, at most one accepted closure per
 `closure_spacing_m` of travel. Every new vertex keeps its frame's keyframe.
 
+Proximity (`closure.proximity`, on by default): a frame whose familiar view gives no closure, or that has no
+familiar view, also measures the vertex nearest to where the odometry puts the agent among those the loop
+gate admits, when it is within `proximity_radius_m`, at the lower bar of `proximity_min_inliers` PnP inliers.
+The view cells recognise a place by its look; a revisit under another sun, in another lane, is not recognised
+(the `strong` renders), but its stereo geometry still measures it. The bar may be lower because the gate has
+already put the vertex where the odometry says the agent is: unrelated places gave at most 9 inliers (1 352
+pairs of real KITTI 06 and 01 frames; 266 pairs of the 06 render at `strong`, docs/views.md), true revisits at
+`strong` up to 23. The
+map's gate and consistency check decide as for any closure. A proximity closure recalls no network state by
+itself (no view is familiar); it is noted `accepted_proximity` in `frames.csv`.
+
 Relocalisation (a session started inside a loaded map, `ExperienceMap.start_session`, docs/memory.md): until
 the session is joined the map offers no candidates (the odometry says nothing about where in the old map the
 agent is), so a familiar view of the loaded map is measured directly against the keyframes of its anchor vertex
@@ -73,6 +84,9 @@ class ProposedClosure:
     target_vertex: int
     agent_from_target: tuple[float, float, float]  # planar (forward m, left m, yaw rad)
     information: np.ndarray  # (3, 3) inverse covariance of agent_from_target
+    # What proposed it: "view_cell" (a familiar view) or "proximity" (the vertex nearest to where the
+    # odometry puts the agent, inside the loop gate); an accepted one is noted "accepted" or "accepted_<via>".
+    via: str = "view_cell"
 
     def map_input(self) -> tuple[int, tuple[float, float, float], np.ndarray]:
         """The `loop_closure` argument of `ExperienceMap.on_frame`."""
@@ -153,14 +167,22 @@ class ViewCellPnpClosure:
             return self._relocalise(context, int(experience_map.unjoined_from))
         if experience_map.odometer_m - self._closure_odometer_m < cfg.closure_spacing_m:
             return NO_ATTEMPT
+        # (vertex, PnP inlier bar (None: the config's), what proposed it), measured in this order.
+        candidates: list[tuple[int, int | None, str]] = []
         anchor = context.anchor_vertex
-        if anchor is None:
-            return NO_ATTEMPT
-        reach = cfg.anchor_neighbours
-        nearby = [v for v in range(anchor - reach, anchor + reach + 1) if 0 <= v < len(experience_map)]
-        candidates = experience_map.loop_candidates(nearby, context.planar_step)
+        if anchor is not None:
+            reach = cfg.anchor_neighbours
+            nearby = [v for v in range(anchor - reach, anchor + reach + 1) if 0 <= v < len(experience_map)]
+            gated = experience_map.loop_candidates(nearby, context.planar_step)
+            candidates = [(c[0], None, "view_cell") for c in gated[: cfg.candidates_per_frame]]
+        if cfg.proximity:
+            nearest = self._nearest_gated(context)
+            if nearest is not None:
+                # Already a view cell's candidate: measured once, at the proximity bar.
+                candidates = [c for c in candidates if c[0] != nearest]
+                candidates.append((nearest, cfg.proximity_min_inliers, "proximity"))
         if not candidates:
-            return ClosureAttempt(None, "no_candidate")
+            return NO_ATTEMPT if anchor is None else ClosureAttempt(None, "no_candidate")
         try:
             current = self.extract(frame.left, frame.right, self._offset_px)
         except Exception as err:  # noqa: BLE001 - a frame without a keyframe closes no loop; the run goes on
@@ -168,16 +190,26 @@ class ViewCellPnpClosure:
             return ClosureAttempt(None, "no_current_keyframe")
         self._made = current
         why = "no_keyframe"
-        for vertex, _predicted, _distance in candidates[: cfg.candidates_per_frame]:
+        for vertex, bar, via in candidates:
             keyframe = self._keyframe(vertex)
             if keyframe is None:
                 continue
-            measurement, why = self.measurer.measure(keyframe, current)
+            measurement, why = self.measurer.measure(keyframe, current, bar)
             if measurement is not None:
-                closure = ProposedClosure(vertex, measurement.agent_from_target, measurement.information)
+                closure = ProposedClosure(vertex, measurement.agent_from_target, measurement.information, via)
                 self._proposed = True
                 return ClosureAttempt(closure, "measured")
         return ClosureAttempt(None, why)
+
+    def _nearest_gated(self, context: ClosureContext) -> int | None:
+        """The vertex nearest to where the odometry puts the agent, among those the map's loop gate admits
+        (far enough back along the path, inside the gate), when it is within `proximity_radius_m`; else
+        None."""
+        experience_map = context.experience_map
+        gated = experience_map.loop_candidates(list(range(len(experience_map))), context.planar_step)
+        if not gated or gated[0][2] > self.config.proximity_radius_m:
+            return None
+        return int(gated[0][0])
 
     def _relocalise(self, context: ClosureContext, first_session_vertex: int) -> ClosureAttempt:
         """A familiar view of the loaded map, measured against its anchor's keyframes (module doc)."""

@@ -47,7 +47,7 @@ class FrameRecord:
     vertex: int  # current map vertex (-1 while lost)
     vertex_created: bool
     loop_closure: tuple[int, int] | None  # (from, to) of the loop link added this frame
-    closure_note: str  # "" (no attempt), "accepted", or why a candidate closure was not added
+    closure_note: str  # "" (no attempt), "accepted" ("accepted_proximity": proposed by proximity), or why not
     data_flags: str  # "" or ";"-joined: "skipped_frames:N" (sequence frames missing before), "time_gap:Ts"
     online_pose: np.ndarray  # (3,) the map's agent pose as the run went
     vertex_from_agent: np.ndarray  # (3,) offset from the current vertex (NaN while lost)

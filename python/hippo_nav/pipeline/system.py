@@ -227,7 +227,8 @@ class SlamSystem:
         )
         note = attempt.note
         if closure is not None:
-            note = "accepted" if outcome.loop_closure is not None else str(outcome.rejected_closure)
+            accepted = "accepted" if closure.via == "view_cell" else f"accepted_{closure.via}"
+            note = accepted if outcome.loop_closure is not None else str(outcome.rejected_closure)
             if outcome.relocalized:
                 note = "relocalised"
         elif outcome.rejected_closure is not None:
