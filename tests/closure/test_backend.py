@@ -110,7 +110,11 @@ def test_proximity_is_not_tried_beyond_its_radius(demo, tmp_path):
     # guard: before a loop closes, the gate holds vertices tens of metres away). The only notes left are
     # the view cells' own: a familiar cell of the passage the agent is on has no candidate.
     config = config_from_dict(
-        {**QUIET, "view_words": {"min_inliers": 20000}, "closure": {"proximity_radius_m": 0.05}}
+        {
+            **QUIET,
+            "view_words": {"min_inliers": 20000},
+            "closure": {"proximity": True, "proximity_radius_m": 0.05},
+        }
     )
     metrics = Pipeline(demo, config).run(None).metrics
     assert metrics["loop_closures"] == 0

@@ -79,9 +79,10 @@ class ClosureConfig(ConfigSection):
         3.0, ge=0.0, description="travel (m) between accepted closures; closer ones add little"
     )
     proximity: bool = Field(
-        True,
+        False,
         description="a frame whose familiar view gives no closure (or that has none) also measures the nearest "
-        "vertex inside the map's loop gate: closes revisits whose look changed too much for the view cells",
+        "vertex inside the map's loop gate: closes revisits whose look changed too much for the view cells "
+        "(off by default: one of 9 such closures was false on the 00 render at `strong`, docs/results.md)",
     )
     proximity_min_inliers: int = Field(
         15,

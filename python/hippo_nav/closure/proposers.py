@@ -19,7 +19,7 @@ stereo frame measures the nearest `candidates_per_frame` against their stored ke
 `LoopMeasurer`) and the first verified one is proposed, at most one accepted closure per
 `closure_spacing_m` of travel. Every new vertex keeps its frame's keyframe.
 
-Proximity (`closure.proximity`, on by default): a frame whose familiar view gives no closure, or that has no
+Proximity (`closure.proximity`, off by default): a frame whose familiar view gives no closure, or that has no
 familiar view, also measures the vertex nearest to where the odometry puts the agent among those the loop
 gate admits, when it is within `proximity_radius_m`, at the lower bar of `proximity_min_inliers` PnP inliers.
 The view cells recognise a place by its look; a revisit under another sun, in another lane, is not recognised
@@ -28,7 +28,8 @@ already put the vertex where the odometry says the agent is: unrelated places ga
 pairs of real KITTI 06 and 01 frames; 266 pairs of the 06 render at `strong`, docs/views.md), true revisits at
 `strong` up to 23. The
 map's gate and consistency check decide as for any closure. A proximity closure recalls no network state by
-itself (no view is familiar); it is noted `accepted_proximity` in `frames.csv`.
+itself (no view is familiar); it is noted `accepted_proximity` in `frames.csv`. Off by default: on the 00 render
+at `strong` one of 9 was false (a wrong PnP pose from 17 inliers on mostly far points, docs/results.md).
 
 Relocalisation (a session started inside a loaded map, `ExperienceMap.start_session`, docs/memory.md): until
 the session is joined the map offers no candidates (the odometry says nothing about where in the old map the
