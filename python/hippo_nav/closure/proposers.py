@@ -26,8 +26,7 @@ The view cells recognise a place by its look; a revisit under another sun, in an
 (the `strong` renders), but its stereo geometry still measures it. The bar may be lower because the gate has
 already put the vertex where the odometry says the agent is: unrelated places gave at most 9 inliers (1 352
 pairs of real KITTI 06 and 01 frames; 266 pairs of the 06 render at `strong`, docs/views.md), true revisits at
-`strong` up to 23. The
-map's gate and consistency check decide as for any closure. A proximity closure recalls no network state by
+`strong` up to 23. The map's gate and consistency check decide as for any closure. A proximity closure recalls no network state by
 itself (no view is familiar); it is noted `accepted_proximity` in `frames.csv`. Off by default: on the 00 render
 at `strong` one of 9 was false (a wrong PnP pose from 17 inliers on mostly far points, docs/results.md).
 
@@ -206,11 +205,10 @@ class ViewCellPnpClosure:
         """The vertex nearest to where the odometry puts the agent, among those the map's loop gate admits
         (far enough back along the path, inside the gate), when it is within `proximity_radius_m`; else
         None."""
-        experience_map = context.experience_map
-        gated = experience_map.loop_candidates(list(range(len(experience_map))), context.planar_step)
-        if not gated or gated[0][2] > self.config.proximity_radius_m:
-            return None
-        return int(gated[0][0])
+        experience_map, step = context.experience_map, context.planar_step
+        near = experience_map.vertices_near(self.config.proximity_radius_m, step)
+        gated = experience_map.loop_candidates(near, step) if near else []
+        return int(gated[0][0]) if gated else None
 
     def _relocalise(self, context: ClosureContext, first_session_vertex: int) -> ClosureAttempt:
         """A familiar view of the loaded map, measured against its anchor's keyframes (module doc)."""
