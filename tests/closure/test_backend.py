@@ -5,6 +5,8 @@ Every sequence here is rendered by the project itself (cached across runs in the
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from hippo_nav.closure import ClosureConfig, KeyframeExtractor, LoopMeasurer
@@ -103,6 +105,37 @@ def test_a_revisit_the_view_cells_miss_is_closed_by_proximity(demo, tmp_path):
     assert notes.get("accepted_proximity", 0) == quality["closures"] and "accepted" not in notes, notes
     errors = with_proximity["errors"]
     assert errors["corrected"]["ate_2d_m"] < 0.5 * errors["vo"]["ate_2d_m"], errors
+
+
+def test_a_wrong_proximity_measurement_is_refused_when_its_neighbour_disagrees(demo, tmp_path, monkeypatch):
+    # A wrong PnP pose that still fits the loop gate (on the 00 render at `strong` one was 3.5 m off, inside
+    # its own covariance's χ² gate by far): every measurement at the proximity bar is moved 3 m forward, as
+    # such a pose would be; the neighbour vertex's measurement (its own bar) stays true. Unconfirmed, the
+    # wrong closures are accepted; confirmed, the neighbour's disagreement refuses every one.
+    truth = demo.ground_truth()
+    drifted = drifting_odometry(truth, scale_error=0.01, yaw_bias_deg_per_frame=0.05)
+    measure = LoopMeasurer.measure
+
+    def wrong_at_the_proximity_bar(self, target, current, min_inliers=None):
+        measurement, why = measure(self, target, current, min_inliers)
+        if measurement is None or min_inliers != self.config.proximity_min_inliers:
+            return measurement, why
+        forward, left, yaw = measurement.agent_from_target
+        return dataclasses.replace(measurement, agent_from_target=(forward + 3.0, left, yaw)), why
+
+    monkeypatch.setattr(LoopMeasurer, "measure", wrong_at_the_proximity_bar)
+    metrics = {}
+    for confirm in (False, True):
+        closure = {"proximity": True, "proximity_confirm": confirm}
+        config = config_from_dict({**QUIET, "view_words": {"min_inliers": 20000}, "closure": closure})
+        replay = _replay(tmp_path, demo, drifted, f"odometry_{confirm}.txt")
+        metrics[confirm] = Pipeline(demo, config, odometry=replay).run(None).metrics
+    assert metrics[False]["closure_attempts"].get("accepted_proximity", 0) >= 2, metrics[False][
+        "closure_attempts"
+    ]
+    notes = metrics[True]["closure_attempts"]
+    assert metrics[True]["loop_closures"] == 0, notes
+    assert notes.get("proximity_disagrees", 0) >= 2, notes
 
 
 def test_proximity_is_not_tried_beyond_its_radius(demo, tmp_path):

@@ -189,6 +189,9 @@ def test_keyframes_take_the_offset_the_odometry_applies(demo):
         def loop_candidates(self, vertices, step) -> list:
             return []
 
+        def vertices_near(self, radius_m, step) -> list:
+            return []
+
     experience_map = EmptyMap()
     proposer.propose(ClosureContext(frame, (1.0, 0.0, 0.0), None, experience_map, 0.8))  # type: ignore[arg-type]
     outcome = SimpleNamespace(created=True, vertex=0, loop_closure=None)

@@ -79,10 +79,10 @@ class ClosureConfig(ConfigSection):
         3.0, ge=0.0, description="travel (m) between accepted closures; closer ones add little"
     )
     proximity: bool = Field(
-        False,
+        True,
         description="a frame whose familiar view gives no closure (or that has none) also measures the nearest "
-        "vertex inside the map's loop gate: closes revisits whose look changed too much for the view cells "
-        "(off by default: one of 9 such closures was false on the 00 render at `strong`, docs/results.md)",
+        "vertex inside the map's loop gate, confirmed by a neighbour of that vertex (`proximity_confirm`): "
+        "closes revisits whose look changed too much for the view cells (docs/results.md)",
     )
     proximity_min_inliers: int = Field(
         15,
@@ -98,6 +98,28 @@ class ClosureConfig(ConfigSection):
         "this close: `max_distance_m` plus the odometry's likely error (farther ones were 90 % of the failed "
         "tries on the 06 render, and their cost)",
     )
+    proximity_confirm: bool = Field(
+        True,
+        description="a proximity measurement is proposed only when a neighbour of its vertex along the path, "
+        "measured from the same frame, puts that neighbour where the first measurement and the map do "
+        "(`proximity_agreement_*`): a wrong PnP pose from few matches is not repeated by a second keyframe",
+    )
+    proximity_confirm_min_inliers: int = Field(
+        10, ge=6, le=20000, description="PnP inliers the confirming neighbour's measurement needs"
+    )
+    proximity_confirm_max_distance_m: float = Field(
+        7.0,
+        gt=0.0,
+        description="the confirming neighbour may be measured this far away (`max_distance_m` plus a vertex "
+        "spacing)",
+    )
+    proximity_agreement_m: float = Field(
+        1.5,
+        gt=0.0,
+        description="a confirmed proximity closure's two measurements put the neighbour within this of each "
+        "other (true ones on the `strong` renders: 0.1-1.2 m; wrong ones 2.4-3.9 m, docs/results.md)",
+    )
+    proximity_agreement_rad: float = Field(0.1, gt=0.0, description="… and within this heading")
     relocalisation_min_inliers: int = Field(
         60,
         ge=6,

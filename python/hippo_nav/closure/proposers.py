@@ -19,16 +19,18 @@ stereo frame measures the nearest `candidates_per_frame` against their stored ke
 `LoopMeasurer`) and the first verified one is proposed, at most one accepted closure per
 `closure_spacing_m` of travel. Every new vertex keeps its frame's keyframe.
 
-Proximity (`closure.proximity`, off by default): a frame whose familiar view gives no closure, or that has no
+Proximity (`closure.proximity`, on by default): a frame whose familiar view gives no closure, or that has no
 familiar view, also measures the vertex nearest to where the odometry puts the agent among those the loop
 gate admits, when it is within `proximity_radius_m`, at the lower bar of `proximity_min_inliers` PnP inliers.
 The view cells recognise a place by its look; a revisit under another sun, in another lane, is not recognised
 (the `strong` renders), but its stereo geometry still measures it. The bar may be lower because the gate has
 already put the vertex where the odometry says the agent is: unrelated places gave at most 9 inliers (1 352
 pairs of real KITTI 06 and 01 frames; 266 pairs of the 06 render at `strong`, docs/views.md), true revisits at
-`strong` up to 23. The map's gate and consistency check decide as for any closure. A proximity closure recalls no network state by
-itself (no view is familiar); it is noted `accepted_proximity` in `frames.csv`. Off by default: on the 00 render
-at `strong` one of 9 was false (a wrong PnP pose from 17 inliers on mostly far points, docs/results.md).
+`strong` up to 30. A bar does not catch the right place measured at a wrong pose, so the measurement is
+proposed only when a path neighbour of its vertex confirms it (`proximity_confirm`, `_confirmed`). The map's
+gate and consistency check then decide as for any closure. A proximity closure recalls no network state by
+itself (no view is familiar); it is noted `accepted_proximity` in `frames.csv`, a refused one
+`proximity_unconfirmed` or `proximity_disagrees`.
 
 Relocalisation (a session started inside a loaded map, `ExperienceMap.start_session`, docs/memory.md): until
 the session is joined the map offers no candidates (the odometry says nothing about where in the old map the
@@ -50,7 +52,7 @@ import numpy as np
 
 from hippo_nav._core import HippoNavError
 from hippo_nav.closure.keyframes import ClosureConfig, Keyframe, KeyframeExtractor
-from hippo_nav.closure.measure import LoopMeasurer
+from hippo_nav.closure.measure import LoopMeasurement, LoopMeasurer
 from hippo_nav.datasets.base import StereoCalibration, StereoFrame
 from hippo_nav.geometry import se2_between, se2_compose
 from hippo_nav.map import ExperienceMap, MapFrameOutcome
@@ -139,6 +141,19 @@ class ViewCellPnpClosure:
         self.config = config or ClosureConfig()
         self.extract = KeyframeExtractor(calibration, self.config, disparity_offset_px)
         self.measurer = LoopMeasurer(calibration, self.config)
+        # A proximity closure's confirming neighbour: measured at its own bar, with any inlier share and
+        # farther (a neighbour is up to a vertex spacing beyond the target); its pose is checked against the
+        # first measurement's (`_confirmed`), which a chance pose does not pass.
+        self.confirmer = LoopMeasurer(
+            calibration,
+            self.config.model_copy(
+                update={
+                    "min_inliers": self.config.proximity_confirm_min_inliers,
+                    "min_inlier_ratio": 0.0,
+                    "max_distance_m": self.config.proximity_confirm_max_distance_m,
+                }
+            ),
+        )
         self.keyframes: dict[int, Keyframe] = {}
         # Keyframes still being extracted (vertex → future); see `after_map`.
         self._pending: dict[int, Future[Keyframe]] = {}
@@ -195,6 +210,10 @@ class ViewCellPnpClosure:
             if keyframe is None:
                 continue
             measurement, why = self.measurer.measure(keyframe, current, bar)
+            if measurement is not None and via == "proximity" and cfg.proximity_confirm:
+                confirmed, why = self._confirmed(experience_map, vertex, measurement, current)
+                if not confirmed:
+                    continue
             if measurement is not None:
                 closure = ProposedClosure(vertex, measurement.agent_from_target, measurement.information, via)
                 self._proposed = True
@@ -209,6 +228,48 @@ class ViewCellPnpClosure:
         near = experience_map.vertices_near(self.config.proximity_radius_m, step)
         gated = experience_map.loop_candidates(near, step) if near else []
         return int(gated[0][0]) if gated else None
+
+    def _confirmed(
+        self, experience_map: ExperienceMap, vertex: int, measurement: LoopMeasurement, current: Keyframe
+    ) -> tuple[bool, str]:
+        """(whether a neighbour of `vertex` along the path, measured from the same frame, lies where
+        `measurement` and the map put it, why not). The neighbour nearer the agent is tried first.
+
+        A wrong PnP pose from a few matches can be metres off and still inside its own covariance's gate (on
+        the 00 render at `strong`: 3.5 m, χ² 42 against the truth); a second keyframe, measured
+        independently, does not repeat the same error: it must put the neighbour within
+        `proximity_agreement_m` and `proximity_agreement_rad` of where the first measurement and the map's
+        short path between the two vertices put it."""
+        cfg = self.config
+        world_from_target = np.array(experience_map.vertex_pose(vertex))
+        agent_from_target = np.array(measurement.agent_from_target)
+        world_from_agent = se2_compose(world_from_target, se2_between(agent_from_target, np.zeros(3)))
+        neighbours = [n for n in (vertex - 1, vertex + 1) if 0 <= n < len(experience_map)]
+        poses = {n: np.array(experience_map.vertex_pose(n)) for n in neighbours}
+        neighbours.sort(key=lambda n: float(np.hypot(*(poses[n][:2] - world_from_agent[:2]))))
+        why = "proximity_no_neighbour"
+        for neighbour in neighbours:
+            keyframe = self._keyframe(neighbour)
+            if keyframe is None:
+                continue
+            second, _ = self.confirmer.measure(keyframe, current)
+            if second is None:
+                why = why if why == "proximity_disagrees" else "proximity_unconfirmed"
+                continue
+            predicted = se2_compose(agent_from_target, se2_between(world_from_target, poses[neighbour]))
+            off = se2_between(predicted, np.array(second.agent_from_target))
+            off_m, off_rad = float(np.hypot(off[0], off[1])), abs(float(off[2]))
+            log.debug(
+                "vertex %d: proximity measurement checked against neighbour %d: %.2f m, %.3f rad apart",
+                vertex,
+                neighbour,
+                off_m,
+                off_rad,
+            )
+            if off_m <= cfg.proximity_agreement_m and off_rad <= cfg.proximity_agreement_rad:
+                return True, "ok"
+            why = "proximity_disagrees"
+        return False, why
 
     def _relocalise(self, context: ClosureContext, first_session_vertex: int) -> ClosureAttempt:
         """A familiar view of the loaded map, measured against its anchor's keyframes (module doc)."""
