@@ -117,7 +117,8 @@ class ClosureConfig(ConfigSection):
         1.5,
         gt=0.0,
         description="a confirmed proximity closure's two measurements put the neighbour within this of each "
-        "other (true ones on the `strong` renders: 0.1-1.2 m; wrong ones 2.4-3.9 m, docs/results.md)",
+        "other (pairs within 1 m of the truth on the `strong` renders: 0.1-1.2 m; with a wrong one: 2.4-4.9 m, "
+        "docs/results.md)",
     )
     proximity_agreement_rad: float = Field(0.1, gt=0.0, description="… and within this heading")
     relocalisation_min_inliers: int = Field(
