@@ -268,6 +268,11 @@ def _add_render(sub: argparse._SubParsersAction) -> None:
         default="same",
         help="how much a place's look changes between passes (default same: identical on every pass)",
     )
+    render.add_argument(
+        "--poles",
+        action="store_true",
+        help="posts on the pavements (trees, lamp posts: structure along the street besides its walls)",
+    )
     render.add_argument("--workers", type=int, default=2, help="rendering threads (default 2)")
     render.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -629,6 +634,7 @@ def _render(args: argparse.Namespace) -> int:
         image_size_px=(width, height),
         seed=args.seed,
         appearance=args.appearance,
+        poles=args.poles,
         workers=args.workers,
         progress=not args.no_progress,
     )

@@ -235,3 +235,28 @@ def test_demo_sequence_is_rendered_once_and_reused(tmp_path: Path) -> None:
     assert first_image.stat().st_mtime_ns == stamp  # cached, not rendered again
     gt = data.ground_truth()
     assert 260 < path_length_m(gt) < 300
+
+
+def test_posts_stand_on_the_pavements_where_the_world_puts_them(loop, intrinsics):
+    # Posts depend on the world position only: a street built from half of the loop has the same posts
+    # there as the whole loop's; they stand 1-2.5 m in from the facades, off the lanes; a ray at a post's
+    # centre stops at its surface (an exact range), and without posts the same ray reaches the facade.
+    whole = StreetWorld(loop[:, :3, 3], seed=0, poles=True)
+    half = StreetWorld(loop[:100, :3, 3], seed=0, poles=True)
+    assert len(whole.poles_xz) >= 10
+    centre_xz = loop[:, :3, 3][:, [0, 2]]
+    distance = np.array([np.min(np.linalg.norm(centre_xz - p, axis=1)) for p in whole.poles_xz])
+    assert distance.min() > 7.0 - 2.5 - 0.5  # the path's poses are 1-2 m apart: a little slack
+    common = {tuple(np.round(p, 6)) for p in whole.poles_xz} & {tuple(np.round(p, 6)) for p in half.poles_xz}
+    assert len(common) >= len(half.poles_xz) // 2
+    camera = loop[0, :3, 3]
+    offsets = whole.poles_xz - camera[[0, 2]]
+    nearest = int(np.argmin(np.linalg.norm(offsets, axis=1)))
+    direction = np.array([offsets[nearest, 0], 0.0, offsets[nearest, 1]])
+    hit = whole.cast(camera, direction[None])
+    plain = StreetWorld(loop[:, :3, 3], seed=0).cast(camera, direction[None])
+    expected = np.linalg.norm(offsets[nearest]) - 0.25
+    assert hit["kind"][0] == 2 and abs(hit["range_m"][0] - expected) < 1e-6
+    assert plain["range_m"][0] > expected + 0.5
+    # The default world has none: renders without posts are unchanged.
+    assert StreetWorld(loop[:, :3, 3], seed=0).poles_xz is None

@@ -121,6 +121,61 @@ class ClosureConfig(ConfigSection):
         "docs/results.md)",
     )
     proximity_agreement_rad: float = Field(0.1, gt=0.0, description="… and within this heading")
+    birdseye: bool = Field(
+        False,
+        description="also propose closures by registering bird's-eye submaps of stereo structure (heading "
+        "invariant, for streets driven the other way; docs/map.md) when no view or proximity closure is "
+        "proposed; off: it does not close KITTI 08's render yet (docs/results.md, 'Reverse loops')",
+    )
+    birdseye_submap_m: float = Field(
+        40.0, gt=0.0, description="path a submap spans: the query's behind it, a stored place's around it"
+    )
+    birdseye_radius_m: float = Field(
+        30.0, gt=0.0, description="a submap keeps points this close to its centre"
+    )
+    birdseye_max_depth_m: float = Field(
+        15.0,
+        gt=0.0,
+        description="stereo points deeper than this are left out: a post seen from several vertices smears "
+        "along the line of sight by its depth error (0.3 px of disparity is 0.7 m at 15 m on a 320-px render)",
+    )
+    birdseye_camera_height_m: float = Field(1.65, gt=0.0, description="the camera's height over the road")
+    birdseye_min_height_m: float = Field(
+        0.5, description="points lower than this over the road are road, and left out"
+    )
+    birdseye_spacing_m: float = Field(
+        5.0, gt=0.0, description="travel between bird's-eye attempts (one per new vertex at most)"
+    )
+    birdseye_candidates: int = Field(
+        3, ge=1, le=100, description="gated places registered per attempt, the nearest by ring key first"
+    )
+    birdseye_min_points: int = Field(
+        150,
+        ge=10,
+        le=100_000,
+        description="a submap with fewer structure points neither proposes nor is proposed",
+    )
+    birdseye_min_peak_ratio: float = Field(
+        1.15, ge=1.0, description="the correlation peak over the best alignment elsewhere, at least"
+    )
+    birdseye_min_inliers: int = Field(
+        150, ge=3, le=100_000, description="fitting query points a registration needs"
+    )
+    birdseye_min_overlap: float = Field(
+        0.5, ge=0.0, le=1.0, description="fitting share of the query points on the shared area, at least"
+    )
+    birdseye_max_self_similarity: float = Field(
+        0.6,
+        ge=0.0,
+        le=1.0,
+        description="a submap whose structure correlates with itself shifted 5 m more than this slides along "
+        "itself (a straight street of walls) and is not registered",
+    )
+    birdseye_confirm: bool = Field(
+        True,
+        description="a bird's-eye registration is proposed only when an earlier one, from another stretch of "
+        "path within 30 m of travel, implies the same correction of the map (within 1.5 m and 0.05 rad)",
+    )
     relocalisation_min_inliers: int = Field(
         60,
         ge=6,

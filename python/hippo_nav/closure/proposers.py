@@ -51,6 +51,7 @@ from typing import Protocol
 import numpy as np
 
 from hippo_nav._core import HippoNavError
+from hippo_nav.closure.birdseye import BirdsEyeSearch
 from hippo_nav.closure.keyframes import ClosureConfig, Keyframe, KeyframeExtractor
 from hippo_nav.closure.measure import LoopMeasurement, LoopMeasurer
 from hippo_nav.datasets.base import StereoCalibration, StereoFrame
@@ -155,6 +156,7 @@ class ViewCellPnpClosure:
             ),
         )
         self.keyframes: dict[int, Keyframe] = {}
+        self.birdseye = BirdsEyeSearch(self.config)
         # Keyframes still being extracted (vertex → future); see `after_map`.
         self._pending: dict[int, Future[Keyframe]] = {}
         self._made: Keyframe | None = None  # the current frame's keyframe, when a closure attempt made one
@@ -170,7 +172,7 @@ class ViewCellPnpClosure:
 
     @property
     def stored_bytes(self) -> int:
-        return int(sum(k.nbytes for k in self.keyframes.values()))
+        return int(sum(k.nbytes for k in self.keyframes.values())) + self.birdseye.stored_bytes
 
     def propose(self, context: ClosureContext) -> ClosureAttempt:
         """The first candidate vertex whose keyframe the current frame measures (module doc)."""
@@ -197,7 +199,8 @@ class ViewCellPnpClosure:
                 candidates = [c for c in candidates if c[0] != nearest]
                 candidates.append((nearest, cfg.proximity_min_inliers, "proximity"))
         if not candidates:
-            return NO_ATTEMPT if anchor is None else ClosureAttempt(None, "no_candidate")
+            attempt = NO_ATTEMPT if anchor is None else ClosureAttempt(None, "no_candidate")
+            return self._or_birdseye(context, attempt)
         try:
             current = self.extract(frame.left, frame.right, self._offset_px)
         except Exception as err:  # noqa: BLE001 - a frame without a keyframe closes no loop; the run goes on
@@ -218,7 +221,22 @@ class ViewCellPnpClosure:
                 closure = ProposedClosure(vertex, measurement.agent_from_target, measurement.information, via)
                 self._proposed = True
                 return ClosureAttempt(closure, "measured")
-        return ClosureAttempt(None, why)
+        return self._or_birdseye(context, ClosureAttempt(None, why))
+
+    def _or_birdseye(self, context: ClosureContext, attempt: ClosureAttempt) -> ClosureAttempt:
+        """`attempt` (no closure), or a bird's-eye closure when `closure.birdseye` proposes one
+        (`birdseye.py`). A bird's-eye closure recalls no network state: no view is familiar, and on a street
+        driven the other way the stored state holds the opposite heading."""
+        if not self.config.birdseye:
+            return attempt
+        vertex, agent_from_target, information, why = self.birdseye.propose(
+            context.experience_map, context.planar_step, self._keyframe
+        )
+        if vertex is None:
+            # The bird's-eye note when it tried (it says more than the view's), else the view's.
+            return ClosureAttempt(None, why) if why else attempt
+        self._proposed = True
+        return ClosureAttempt(ProposedClosure(vertex, agent_from_target, information, "birdseye"), "measured")
 
     def _nearest_gated(self, context: ClosureContext) -> int | None:
         """The vertex nearest to where the odometry puts the agent, among those the map's loop gate admits
@@ -362,6 +380,7 @@ class ViewCellPnpClosure:
             for vertex, (px, desc, points) in zip(saved["vertex"].tolist(), parts)
         }
         self._pending = {}
+        self.birdseye = BirdsEyeSearch(self.config)  # its caches derive from the keyframes
         self._closure_odometer_m = float(saved["closure_odometer_m"])
         self._hypotheses = [(float(h[0]), np.array(h[1:], np.float64)) for h in saved["hypotheses"]]
 
@@ -371,6 +390,8 @@ class ViewCellPnpClosure:
         """A new vertex keeps this frame's keyframe: the one a closure attempt made, or one extracted on
         `worker` (beside the next frame's odometry: it is first needed when the agent comes back, at least
         `min_loop_separation_m` later). An accepted closure restarts the spacing."""
+        if outcome.loop_closure is not None:
+            self.birdseye.forget()
         if self._proposed and outcome.loop_closure is not None:
             self._closure_odometer_m = experience_map.odometer_m
         if not outcome.created or outcome.vertex is None:

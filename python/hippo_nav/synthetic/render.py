@@ -102,6 +102,7 @@ def render_sequence(
     appearance: str = "same",
     street_path_m: np.ndarray | None = None,
     passes: np.ndarray | None = None,
+    poles: bool = False,
     workers: int = 2,
     progress: bool = False,
 ) -> Path:
@@ -119,7 +120,9 @@ def render_sequence(
     `appearance` ("same", "mild" or "strong") changes the look of a place from one pass to the next
     (`hippo_nav.synthetic.appearance`); the pass of each frame is `pass_indices` of the camera positions unless
     `passes` (one per pose) gives it. The street follows the camera path unless `street_path_m` (M, 3) gives
-    the path it is built along (e.g. the first pass of a street driven again in another lane).
+    the path it is built along (e.g. the first pass of a street driven again in another lane). `poles` puts
+    posts on the pavements (`StreetWorld`: trees, lamp posts and signs, the structure a street has along its
+    length besides its walls; docs/render.md).
     """
     poses = np.asarray(world_from_camera, dtype=np.float64)
     if poses.ndim != 3 or poses.shape[1:] not in ((4, 4), (3, 4)) or len(poses) == 0:
@@ -148,7 +151,11 @@ def render_sequence(
     p0, p1 = stereo_projections((width, height), baseline_m, focal_ratio)
     K = p0[:, :3]
     world = StreetWorld(
-        street, street_half_width_m=street_half_width_m, camera_height_m=camera_height_m, seed=seed
+        street,
+        street_half_width_m=street_half_width_m,
+        camera_height_m=camera_height_m,
+        seed=seed,
+        poles=poles,
     )
     model = None if appearance == "same" else AppearanceModel(world, appearance, seed, poses, passes)
     root = Path(out_root)
@@ -288,6 +295,7 @@ def render_kitti(
     road_smoothing_m: float = 6.0,
     seed: int = 0,
     appearance: str = "same",
+    poles: bool = False,
     workers: int = 2,
     progress: bool = False,
 ) -> Path:
@@ -304,7 +312,8 @@ def render_kitti(
     `appearance` "mild" or "strong" (recorded in the stamp) changes a place's look on every pass
     (docs/render.md) and drives later passes in another lane: the camera moves sideways (along its x axis) by
     `lane_offsets_m` of the road path's smoothed pass, over ~40 m of road; the street stays where the road
-    is, and the written poses are those of the cameras rendered, offsets included.
+    is, and the written poses are those of the cameras rendered, offsets included. `poles` (recorded in the
+    stamp) puts posts on the pavements (`render_sequence`).
     """
     from hippo_nav.datasets.kitti import read_times
     from hippo_nav.io.poses import read_kitti_poses
@@ -347,6 +356,8 @@ def render_kitti(
     }
     if appearance != "same":  # a "same" stamp is the one written before appearances existed
         stamp["appearance"] = appearance
+    if poles:  # likewise, a street without posts keeps its old stamp
+        stamp["poles"] = True
     if root.resolve() == kitti_root.resolve():
         raise DatasetError(
             f"--out {root} is the KITTI root being read: rendering there would overwrite its poses/{sequence}.txt "
@@ -379,6 +390,7 @@ def render_kitti(
         appearance=appearance,
         street_path_m=None if appearance == "same" else road[:, :3, 3],
         passes=passes,
+        poles=poles,
         workers=workers,
         progress=progress,
     )

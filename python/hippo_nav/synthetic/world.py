@@ -115,6 +115,40 @@ def _smooth_box(x: np.ndarray, lo: float, hi: float, width: np.ndarray) -> np.nd
     return rise * fall
 
 
+_POLE_RADIUS_M = 0.25
+_POLE_CELL_M = 5.0  # one candidate post per cell of this grid (world-fixed)
+_POLE_BAND_M = (1.0, 2.5)  # posts stand this far in from the facades
+
+
+def _pole_positions(seg_a: np.ndarray, seg_b: np.ndarray, half_width_m: float) -> np.ndarray:
+    """(K, 2) horizontal (x, z) centres of the posts: one candidate per `_POLE_CELL_M` cell of a world-fixed
+    grid, placed in its cell by a hash of the cell's integer coordinates (so a post depends on its world
+    position only, never on the trajectory's extent or order), kept where its distance to the street's axis
+    (the nearest path segment) puts it `_POLE_BAND_M` in from the facade: on a pavement, off every lane."""
+    a, b = seg_a[:, [0, 2]], seg_b[:, [0, 2]]
+    lo = np.floor((np.minimum(a, b).min(0) - half_width_m) / _POLE_CELL_M).astype(np.int64)
+    hi = np.ceil((np.maximum(a, b).max(0) + half_width_m) / _POLE_CELL_M).astype(np.int64)
+    grid_i, grid_j = np.meshgrid(np.arange(lo[0], hi[0]), np.arange(lo[1], hi[1]), indexing="ij")
+    ii, jj = grid_i.ravel().astype(np.float64), grid_j.ravel().astype(np.float64)
+
+    def unit_hash(k: float) -> np.ndarray:
+        return np.modf(np.abs(np.sin(ii * 12.9898 + jj * 78.233 + k) * 43758.5453))[0]
+
+    centres = np.stack([ii + unit_hash(0.0), jj + unit_hash(1.7)], axis=1) * _POLE_CELL_M
+    # Distance to the nearest segment, in chunks of segments (a long drive has thousands).
+    nearest = np.full(len(centres), np.inf)
+    ab = b - a
+    length2 = np.maximum((ab * ab).sum(1), 1e-12)
+    for start in range(0, len(a), 256):
+        sl = slice(start, start + 256)
+        rel = centres[:, None, :] - a[None, sl]
+        t = np.clip((rel * ab[None, sl]).sum(2) / length2[None, sl], 0.0, 1.0)
+        d = np.linalg.norm(rel - t[..., None] * ab[None, sl], axis=2)
+        nearest = np.minimum(nearest, d.min(1))
+    keep = (nearest >= half_width_m - _POLE_BAND_M[1]) & (nearest <= half_width_m - _POLE_BAND_M[0])
+    return centres[keep]
+
+
 class StreetWorld:
     """The textured street around `path_m` (N, 3 camera centres); see the module doc."""
 
@@ -127,6 +161,7 @@ class StreetWorld:
         max_range_m: float = 90.0,
         simplify_tolerance_m: float = 0.1,
         seed: int = 0,
+        poles: bool = False,
     ) -> None:
         path = np.asarray(path_m, dtype=np.float64).reshape(-1, 3)
         if len(path) == 0 or not np.all(np.isfinite(path)):
@@ -157,6 +192,11 @@ class StreetWorld:
         self.ground_normal = np.where(
             norm[:, None] > 1e-9, normal / np.where(norm > 0, norm, 1)[:, None], _DOWN
         )
+
+        # Street furniture (`poles`): vertical posts on the pavements, where a real street has trees, lamp
+        # posts and signs. Walls alone give a street no structure along its length (a straight street seen
+        # from above is two parallel lines); posts do, in either direction of travel.
+        self.poles_xz = _pole_positions(self.seg_a, self.seg_b, self.street_half_width_m) if poles else None
 
         rng = np.random.default_rng(seed)
         self._facade_fine = _WaveBank.random(rng, 16, (0.2, 1.5))
@@ -232,6 +272,22 @@ class StreetWorld:
         along = np.clip((rel * u[bound]).sum(1), 0.0, length[bound])
         outward = rel - along[:, None] * u[bound]
         outward /= np.maximum(np.linalg.norm(outward, axis=1), 1e-9)[:, None]
+        if self.poles_xz is not None and len(self.poles_xz):
+            # A post in front of the facade hides it: the nearest circle the ray enters (from outside).
+            c = self.poles_xz - centre_m[[0, 2]]
+            c = c[np.einsum("kj,kj->k", c, c) < (self.max_range_m + _POLE_RADIUS_M) ** 2]
+            if len(c):
+                proj = e @ c.T
+                disc = proj * proj - ((c * c).sum(1) - _POLE_RADIUS_M**2)
+                enter = proj - np.sqrt(np.maximum(disc, 0.0))
+                enter = np.where((disc >= 0) & (enter > 1e-6), enter, np.inf)
+                k = np.argmin(enter, axis=1)
+                s_pole = enter[np.arange(len(e)), k]
+                hit = s_pole < s_wall
+                if hit.any():
+                    into = c[k[hit]] - s_pole[hit, None] * e[hit]  # from the hit into the post
+                    outward[hit] = into / _POLE_RADIUS_M
+                    s_wall = np.where(hit, s_pole, s_wall)
         return cap_in, cap_out, s_wall, outward, bound
 
     def cast(

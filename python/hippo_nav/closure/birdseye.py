@@ -1,0 +1,521 @@
+"""Bird's-eye submaps: a heading-invariant description of a place from stereo depth, and its registration.
+
+A view cell is directional: driven the other way, a street shows a forward camera other images and no view is
+familiar (KITTI 08). Its 3-D structure is the same from either direction, and a stereo camera measures it. So a
+place is also described from above (docs/map.md, "Bird's-eye closures"):
+
+- **Structure points.** The stereo points a vertex's keyframe already keeps (`keyframes.py`) that stand above
+  the road (`birdseye_min_height_m` over a road `birdseye_camera_height_m` below the camera) and lie within
+  `birdseye_max_depth_m` (farther stereo depths are metres uncertain), dropped to the plane of the map:
+  (forward, left) in the vertex's frame. Nothing more is stored per vertex.
+- **Submap.** The structure points of the vertices within a stretch of path, placed by the map's vertex poses
+  (locally as good as the odometry) in the frame of one vertex (`Submap`). A stored place uses the vertices
+  `birdseye_submap_m / 2` on either side of it; the query, the newest vertex, the `birdseye_submap_m` behind it.
+- **Ring key** (`Submap.ring_key`, after Scan Context): the share of occupied cells in each ring around the
+  centre. It does not change with heading, so it ranks the candidate places for any direction of travel.
+- **Self-similarity** (`self_similarity`): a straight street of walls slides along itself, and no registration
+  can place it along its length; such a submap (`birdseye_max_self_similarity`) is not registered at all.
+- **Registration** (`register`): an exhaustive rotation search (the headings the loop gate admits, in
+  5° steps; every translation at once by FFT cross-correlation of blurred occupancy images at
+  0.5 m) finds the alignment; Gauss–Newton on the target's distance transform refines it,
+  and its Hessian gives the information. A registration is refused when the correlation peak is not distinct
+  from the best alignment elsewhere (`birdseye_min_peak_ratio`: a symmetric square or junction), when too few
+  query points land on the target's structure (`birdseye_min_overlap`, `birdseye_min_inliers`), or when the
+  refined pose is uncertain along some direction (0.3 m).
+- **Confirmation** (`BirdsEyeSearch`, `birdseye_confirm`): a registration is proposed only when an earlier one
+  from another stretch of path implies the same correction of the map.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from hippo_nav.geometry import se2_between, se2_compose, wrap_angle
+
+log = logging.getLogger("hippo_nav.pipeline")
+
+__all__ = [
+    "BirdsEyeRegistration",
+    "BirdsEyeSearch",
+    "Submap",
+    "register",
+    "self_similarity",
+    "structure_points",
+    "submap",
+]
+
+# Fixed choices of the registration (docs/map.md, "Bird's-eye closures"):
+_MAX_HEIGHT_M = 4.0  # structure points higher than this over the camera are left out
+_ROTATIONS = 72  # headings of the rotation search (5° steps; the fine stage refines)
+_COARSE_CELL_M = 0.5  # cell of the rotation search's occupancy images
+_BLUR_M = 0.5  # Gaussian blur of those images (a point's stereo scatter)
+_MAX_SHIFT_M = 15.0  # the search's reach without a prior
+_INLIER_M = 0.75  # a registered point this close to target structure fits
+_MAX_SIGMA_M = 0.3  # a registration less certain than this in some direction is refused
+_POINT_SIGMA_M = 0.2  # least residual of a registered point
+_COVARIANCE_INFLATION = 10.0  # the registration's points are not independent
+_PROBE_M = 5.0  # shift at which a submap's self-similarity is probed
+_CONFIRM_WINDOW_M = 30.0  # travel within which two registrations confirm each other
+_AGREEMENT_M, _AGREEMENT_RAD = 1.5, 0.05  # confirming registrations place the agent this close
+
+# Ring key: rings of this width (m), and the occupancy cell it counts (m).
+_RING_WIDTH_M = 3.0
+_RING_CELL_M = 1.0
+# The fine stage's distance-transform cell (m) and Gauss–Newton iterations.
+_FINE_CELL_M = 0.2
+_ITERATIONS = 12
+# Query points farther than this (m) from any target structure are outside what the target saw: they are
+# neither inliers nor count against the overlap.
+_SHARED_M = 3.0
+# Alignments this far apart (cells of the coarse image; rotation steps) count as "elsewhere" for the peak ratio.
+_ELSEWHERE_CELLS = 3
+_ELSEWHERE_STEPS = 3
+
+
+def structure_points(points_camera_m: np.ndarray, config) -> np.ndarray:
+    """(n, 2) float32 planar (forward, left) points of a keyframe's camera-frame stereo points (x right,
+    y down, z forward) that stand above the road and lie within `birdseye_max_depth_m` (module doc)."""
+    p = np.asarray(points_camera_m, dtype=np.float32).reshape(-1, 3)
+    height_m = -p[:, 1]  # above the camera
+    keep = (
+        (p[:, 2] > 0.5)
+        & (p[:, 2] <= config.birdseye_max_depth_m)
+        & (height_m >= config.birdseye_min_height_m - config.birdseye_camera_height_m)
+        & (height_m <= _MAX_HEIGHT_M)
+    )
+    return np.stack([p[keep, 2], -p[keep, 0]], axis=1).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class Submap:
+    """Structure points (n, 2) float32 (forward, left) in the frame of its centre vertex, within
+    `radius_m` of it."""
+
+    points_m: np.ndarray
+    radius_m: float
+
+    def __len__(self) -> int:
+        return len(self.points_m)
+
+    def ring_key(self) -> np.ndarray:
+        """Share of occupied `_RING_CELL_M` cells in each `_RING_WIDTH_M` ring around the centre: the same
+        whatever the heading (module doc)."""
+        cells = np.unique(np.floor(self.points_m / _RING_CELL_M).astype(np.int64), axis=0)
+        centres = (cells + 0.5) * _RING_CELL_M
+        rings = int(np.ceil(self.radius_m / _RING_WIDTH_M))
+        ring = np.minimum(
+            (np.hypot(centres[:, 0], centres[:, 1]) / _RING_WIDTH_M).astype(np.int64), rings - 1
+        )
+        occupied = np.bincount(ring, minlength=rings).astype(np.float64)
+        # Cells per ring: the annulus's area in cells.
+        edges = np.arange(rings + 1) * _RING_WIDTH_M
+        area = np.pi * np.diff(edges**2) / _RING_CELL_M**2
+        return occupied / area
+
+
+def submap(
+    centre_pose: np.ndarray, member_poses: np.ndarray, member_points: list[np.ndarray], radius_m: float
+) -> Submap:
+    """The members' structure points (each in its own vertex's frame, `member_poses` (k, 3) world poses)
+    placed in the frame of `centre_pose` (world (x, y, yaw)), keeping those within `radius_m`."""
+    parts = []
+    c, s = np.cos(centre_pose[2]), np.sin(centre_pose[2])
+    for pose, pts in zip(np.asarray(member_poses, np.float64).reshape(-1, 3), member_points):
+        if not len(pts):
+            continue
+        cy, sy = np.cos(pose[2]), np.sin(pose[2])
+        world = np.stack(
+            [pose[0] + cy * pts[:, 0] - sy * pts[:, 1], pose[1] + sy * pts[:, 0] + cy * pts[:, 1]], axis=1
+        )
+        dx, dy = world[:, 0] - centre_pose[0], world[:, 1] - centre_pose[1]
+        parts.append(np.stack([c * dx + s * dy, -s * dx + c * dy], axis=1))
+    points = np.concatenate(parts).astype(np.float32) if parts else np.zeros((0, 2), np.float32)
+    points = points[np.hypot(points[:, 0], points[:, 1]) <= radius_m]
+    return Submap(points, float(radius_m))
+
+
+def self_similarity(sub: Submap, cfg) -> float:
+    """The submap's blurred occupancy correlated with itself shifted 5 m in the direction where
+    that correlation is greatest, over its value unshifted: near 1 where the structure slides along itself (a
+    straight street: walls and nothing across them), lower where a bend, a junction or a gap pins it down.
+    A registration cannot be trusted along a direction the structure slides in (module doc)."""
+    if not len(sub):
+        return 1.0
+    cell = _COARSE_CELL_M
+    half = int(np.ceil(sub.radius_m / cell))
+    size = int(2 ** np.ceil(np.log2(4 * half)))
+    image = np.minimum(_raster(sub.points_m[None], cell, half, size), 1.0)[0]
+    fy = np.fft.fftfreq(size)[:, None]
+    fx = np.fft.rfftfreq(size)[None, :]
+    blur = np.exp(-2 * (np.pi * _BLUR_M / cell) ** 2 * (fx**2 + fy**2))
+    f = np.fft.rfft2(image) * blur
+    auto = np.fft.irfft2(np.abs(f) ** 2, s=(size, size))
+    shift = np.fft.fftfreq(size, 1.0 / size) * cell
+    ring = np.abs(np.hypot(shift[:, None], shift[None, :]) - _PROBE_M) <= 0.5 * cell
+    return float(auto[ring].max() / auto[0, 0]) if auto[0, 0] > 0 else 1.0
+
+
+@dataclass(frozen=True)
+class BirdsEyeRegistration:
+    """The pose of the query submap's centre in the target submap's frame, and how well it is determined."""
+
+    target_from_query: tuple[float, float, float]  # planar (forward m, left m, yaw rad)
+    information: np.ndarray  # (3, 3) inverse covariance of target_from_query
+    inliers: int  # query points within 0.75 m of target structure
+    overlap: float  # inliers / query points on the shared area (within `_SHARED_M` of target structure)
+    peak_ratio: float  # the correlation peak over the best one elsewhere
+    sigma_max_m: float  # the refined position's largest standard deviation (m), before inflation
+
+
+def register(
+    query: Submap,
+    target: Submap,
+    config,
+    prior: tuple[np.ndarray, float, float] | None = None,
+) -> tuple[BirdsEyeRegistration | None, str]:
+    """(registration, "ok") or (None, why not) of `query` onto `target` (module doc). `prior`: (predicted
+    target_from_query (x, y, yaw), its radius m, its yaw window rad), the loop gate around where the odometry
+    puts the query; the search keeps to it (None: every heading, shifts up to `_MAX_SHIFT_M`)."""
+    cfg = config
+    if len(query) < cfg.birdseye_min_points or len(target) < cfg.birdseye_min_points:
+        return None, "birdseye_few_points"
+    radius_m = max(query.radius_m, target.radius_m)
+    yaw_rad, shift_m, ratio = _coarse(query.points_m, target.points_m, radius_m, cfg, prior)
+    if ratio < cfg.birdseye_min_peak_ratio:
+        return None, "birdseye_ambiguous"
+    fine = _refine(query.points_m, target.points_m, np.array([shift_m[0], shift_m[1], yaw_rad]), cfg)
+    if fine is None:
+        return None, "birdseye_no_overlap"
+    pose, hessian, inliers, overlap, sigma_m = fine
+    if inliers < cfg.birdseye_min_inliers or overlap < cfg.birdseye_min_overlap:
+        return None, "birdseye_no_overlap"
+    try:
+        covariance = np.linalg.inv(hessian) * sigma_m**2
+    except np.linalg.LinAlgError:
+        return None, "birdseye_degenerate"
+    sigma_max_m = float(np.sqrt(max(np.linalg.eigvalsh(covariance[:2, :2]).max(), 0.0)))
+    if not np.isfinite(sigma_max_m) or sigma_max_m > _MAX_SIGMA_M:
+        return None, "birdseye_degenerate"
+    covariance = covariance * _COVARIANCE_INFLATION + np.diag(
+        [cfg.sigma_floor_xy_m**2, cfg.sigma_floor_xy_m**2, cfg.sigma_floor_yaw_rad**2]
+    )
+    registration = BirdsEyeRegistration(
+        (float(pose[0]), float(pose[1]), float(wrap_angle(pose[2]))),
+        np.linalg.inv(covariance),
+        int(inliers),
+        float(overlap),
+        float(ratio),
+        sigma_max_m,
+    )
+    return registration, "ok"
+
+
+def _raster(points_m: np.ndarray, cell_m: float, half_cells: int, size: int, stack: int = 1) -> np.ndarray:
+    """(stack, size, size) counts of (stack, n, 2) points in cells of `cell_m`, the centre at
+    (half_cells, half_cells); axis 1 forward, axis 2 left. Points outside are dropped."""
+    idx = np.floor(points_m / cell_m).astype(np.int64) + half_cells
+    inside = ((idx >= 0) & (idx < 2 * half_cells)).all(axis=-1)
+    layer = np.broadcast_to(np.arange(stack)[:, None], inside.shape)
+    flat = (layer * size + idx[..., 0]) * size + idx[..., 1]
+    counts = np.bincount(flat[inside], minlength=stack * size * size)
+    return counts.reshape(stack, size, size).astype(np.float32)
+
+
+def _coarse(
+    query_m: np.ndarray, target_m: np.ndarray, radius_m: float, cfg, prior
+) -> tuple[float, np.ndarray, float]:
+    """(yaw rad, shift m, peak ratio) of the best alignment target ≈ R(yaw)·query + shift, searched over the
+    headings and translations the prior admits (module doc); the ratio is over the best alignment elsewhere
+    that the prior admits too."""
+    cell = _COARSE_CELL_M
+    half = int(np.ceil(radius_m / cell))
+    size = int(2 ** np.ceil(np.log2(4 * half)))  # linear (not cyclic) correlation of 2·half-cell images
+    steps = int(_ROTATIONS)
+    all_angles = 2 * np.pi * np.arange(steps) / steps
+    shift = np.fft.fftfreq(size, 1.0 / size)
+    if prior is None:
+        centre, reach_m, headings = np.zeros(2), _MAX_SHIFT_M, np.ones(steps, bool)
+    else:
+        centre, reach_m = np.asarray(prior[0][:2], np.float64), float(prior[1])
+        headings = np.abs(wrap_angle(all_angles - prior[0][2])) <= prior[2] + np.pi / steps
+    # Only the headings the prior admits are searched (the costly part: one image and FFT each).
+    index = np.flatnonzero(headings)
+    if not len(index):
+        return 0.0, np.zeros(2), 0.0
+    angles = all_angles[index]
+    c, s = np.cos(angles)[:, None], np.sin(angles)[:, None]
+    rotated = np.stack(
+        [c * query_m[:, 0] - s * query_m[:, 1], s * query_m[:, 0] + c * query_m[:, 1]], axis=-1
+    )
+    # Occupancy, not counts: a wall seen from many vertices must not outweigh one seen once.
+    q = np.minimum(_raster(rotated, cell, half, size, len(index)), 1.0)
+    t = np.minimum(_raster(target_m[None], cell, half, size), 1.0)
+    # Both images blurred by a Gaussian of `_BLUR_M` (in the Fourier domain, as one product).
+    fy = np.fft.fftfreq(size)[:, None]
+    fx = np.fft.rfftfreq(size)[None, :]
+    sigma_cells = _BLUR_M / cell
+    blur = np.exp(-2 * (np.pi * sigma_cells) ** 2 * (fx**2 + fy**2))
+    fq, ft = np.fft.rfft2(q) * blur, np.fft.rfft2(t) * blur
+    corr = np.fft.irfft2(np.conj(fq) * ft, s=(size, size))  # corr[k, s] = Σ_x Q_k(x)·T(x + s)
+    # Norms of the blurred images by Parseval (rfft halves count twice, but for the first and Nyquist columns).
+    weight = np.full(fq.shape[-1], 2.0)
+    weight[0] = 1.0
+    if size % 2 == 0:
+        weight[-1] = 1.0
+    norm_q = np.sqrt(np.maximum((np.abs(fq) ** 2 * weight).sum(axis=(1, 2)) / size**2, 1e-12))
+    norm_t = np.sqrt(max(float((np.abs(ft) ** 2 * weight).sum()) / size**2, 1e-12))
+    # Shifts the correlation holds without wrapping around, within the prior's reach.
+    linear = np.abs(shift) <= size - 2 * half
+    window = (
+        (np.hypot(shift[:, None] * cell - centre[0], shift[None, :] * cell - centre[1]) <= reach_m)
+        & linear[:, None]
+        & linear[None, :]
+    )
+    score = np.where(window[None], corr, -np.inf) / (norm_q[:, None, None] * norm_t)
+    best = np.unravel_index(int(np.argmax(score)), score.shape)
+    k, i, j = (int(v) for v in best)
+    peak = float(score[k, i, j])
+    if not np.isfinite(peak) or peak <= 0:
+        return 0.0, np.zeros(2), 0.0  # nothing admitted overlaps
+    # The best alignment elsewhere: another heading, or this heading away from the peak.
+    dk = np.abs((index - index[k] + steps // 2) % steps - steps // 2)
+    other = score[dk > _ELSEWHERE_STEPS].max(initial=-np.inf)
+    near = score[dk <= _ELSEWHERE_STEPS].copy()
+    di = np.abs((np.arange(size) - i + size // 2) % size - size // 2)
+    dj = np.abs((np.arange(size) - j + size // 2) % size - size // 2)
+    near[:, (di[:, None] <= _ELSEWHERE_CELLS) & (dj[None, :] <= _ELSEWHERE_CELLS)] = -np.inf
+    other = max(float(other), float(near.max(initial=-np.inf)))
+    ratio = peak / other if other > 0 else np.inf
+    return float(angles[k]), np.array([shift[i] * cell, shift[j] * cell]), float(ratio)
+
+
+def _refine(query_m: np.ndarray, target_m: np.ndarray, start: np.ndarray, cfg):
+    """Gauss–Newton of target ≈ R(yaw)·query + t on the target's distance transform, from `start`
+    (t_forward, t_left, yaw): (pose, Hessian, inliers, overlap, residual sigma m), or None."""
+    cell = _FINE_CELL_M
+    lo = target_m.min(axis=0) - _SHARED_M - 1.0
+    shape = np.ceil((target_m.max(axis=0) + _SHARED_M + 1.0 - lo) / cell).astype(np.int64) + 1
+    image = np.full((int(shape[0]), int(shape[1])), 255, np.uint8)
+    idx = np.floor((target_m - lo) / cell).astype(np.int64)
+    image[idx[:, 0], idx[:, 1]] = 0
+    distance = cv2.distanceTransform(image, cv2.DIST_L2, cv2.DIST_MASK_PRECISE).astype(np.float64) * cell
+    grad_0, grad_1 = np.gradient(distance, cell)
+    pose = start.astype(np.float64).copy()
+
+    def residuals(reach_m: float):
+        c, s = np.cos(pose[2]), np.sin(pose[2])
+        rq = np.stack([c * query_m[:, 0] - s * query_m[:, 1], s * query_m[:, 0] + c * query_m[:, 1]], axis=1)
+        d, g0, g1, valid = _sample(distance, grad_0, grad_1, (rq + pose[:2] - lo) / cell)
+        inlier = valid & (d <= reach_m)
+        jac = np.stack([g0, g1, -g0 * rq[:, 1] + g1 * rq[:, 0]], axis=1)[inlier]
+        return d, valid, inlier, jac
+
+    for iteration in range(_ITERATIONS):
+        # Trimmed: twice the inlier bar while the alignment settles (the coarse step's blur), then the bar.
+        reach = _INLIER_M if iteration >= _ITERATIONS // 2 else 2.0 * _INLIER_M
+        d, _, inlier, jac = residuals(reach)
+        if inlier.sum() < 3:
+            return None
+        try:
+            delta = np.linalg.solve(jac.T @ jac + 1e-6 * np.eye(3), -jac.T @ d[inlier])
+        except np.linalg.LinAlgError:
+            return None
+        pose += delta
+        if iteration >= _ITERATIONS // 2 and np.abs(delta[:2]).max() < 1e-3 and abs(delta[2]) < 1e-4:
+            break
+    d, valid, inlier, jac = residuals(_INLIER_M)
+    if inlier.sum() < 3:
+        return None
+    hessian = jac.T @ jac
+    sigma_m = float(np.sqrt(np.mean(d[inlier] ** 2)))
+    shared = valid & (d <= _SHARED_M)
+    inliers = int(inlier.sum())
+    overlap = inliers / max(int(shared.sum()), 1)
+    return pose, hessian, inliers, overlap, max(sigma_m, _POINT_SIGMA_M)
+
+
+def _sample(distance: np.ndarray, grad_0: np.ndarray, grad_1: np.ndarray, at: np.ndarray):
+    """Bilinear samples of the distance transform and its gradient at fractional cells `at` (n, 2)."""
+    n0, n1 = distance.shape
+    valid = (at[:, 0] >= 0) & (at[:, 0] < n0 - 1) & (at[:, 1] >= 0) & (at[:, 1] < n1 - 1)
+    a = np.where(valid[:, None], at, 0.0)
+    i, j = np.floor(a[:, 0]).astype(np.int64), np.floor(a[:, 1]).astype(np.int64)
+    fi, fj = a[:, 0] - i, a[:, 1] - j
+    out = []
+    for field in (distance, grad_0, grad_1):
+        out.append(
+            field[i, j] * (1 - fi) * (1 - fj)
+            + field[i + 1, j] * fi * (1 - fj)
+            + field[i, j + 1] * (1 - fi) * fj
+            + field[i + 1, j + 1] * fi * fj
+        )
+    return out[0], out[1], out[2], valid
+
+
+class BirdsEyeSearch:
+    """Bird's-eye closure proposals for a map whose vertices keep stereo keyframes (module doc).
+
+    `propose(experience_map, planar_step, keyframe_of)` registers the submap behind the newest vertex against
+    the submaps of gated places, at most once per `birdseye_spacing_m` of travel and once per vertex:
+    (target vertex, agent_from_target, information, why) or (None, None, None, why). `keyframe_of(vertex)`
+    gives a vertex's keyframe (or None). What it keeps per vertex: its structure points (float32, 8 bytes a
+    point; `stored_bytes`) and its submap's ring key once known."""
+
+    def __init__(self, config) -> None:
+        self.config = config
+        self.points: dict[int, np.ndarray] = {}  # vertex → structure points (forward, left) in its frame
+        self._ring_keys: dict[int, np.ndarray] = {}
+        self._last_odometer_m = -np.inf
+        self._last_vertex = -1
+        # Registrations not yet confirmed: (odometer m, the map correction it implies (x, y, yaw)).
+        self._hypotheses: list[tuple[float, np.ndarray]] = []
+
+    def forget(self) -> None:
+        """Drop unconfirmed registrations (a closure moved the map: the corrections they imply are stale)."""
+        self._hypotheses = []
+
+    @property
+    def stored_bytes(self) -> int:
+        return int(sum(p.nbytes for p in self.points.values()))
+
+    def _points(self, vertex: int, keyframe_of) -> np.ndarray:
+        pts = self.points.get(vertex)
+        if pts is None:
+            keyframe = keyframe_of(vertex)
+            if keyframe is None:
+                return np.zeros((0, 2), np.float32)
+            pts = structure_points(keyframe.points_m, self.config)
+            self.points[vertex] = pts
+        return pts
+
+    def _submap(self, centre: int, lo_m: float, hi_m: float, poses, path_m, keyframe_of) -> Submap:
+        members = np.flatnonzero((path_m >= path_m[centre] + lo_m) & (path_m <= path_m[centre] + hi_m))
+        return submap(
+            poses[centre],
+            poses[members],
+            [self._points(int(u), keyframe_of) for u in members],
+            self.config.birdseye_radius_m,
+        )
+
+    def propose(self, experience_map, planar_step, keyframe_of):
+        cfg = self.config
+        none = (None, None, None)
+        newest = len(experience_map) - 1
+        odometer = experience_map.odometer_m
+        if (
+            newest < 1
+            or newest == self._last_vertex
+            or odometer - self._last_odometer_m < cfg.birdseye_spacing_m
+        ):
+            return (*none, "")
+        self._last_vertex, self._last_odometer_m = newest, odometer
+        poses = np.asarray(experience_map.poses(), np.float64)
+        # Path length along the vertices (a session's jump counts as a long path: no submap spans it).
+        path_m = np.r_[0.0, np.cumsum(np.hypot(*np.diff(poses[:, :2], axis=0).T))]
+        half = 0.5 * cfg.birdseye_submap_m
+        query = self._submap(newest, -cfg.birdseye_submap_m, 0.0, poses, path_m, keyframe_of)
+        if len(query) < cfg.birdseye_min_points:
+            return (*none, "birdseye_few_points")
+        if self_similarity(query, cfg) > cfg.birdseye_max_self_similarity:
+            return (*none, "birdseye_featureless")
+        radius_m, yaw_rad = experience_map.loop_gate()
+        near = experience_map.vertices_near(radius_m + cfg.birdseye_radius_m, planar_step)
+        gated = [int(c[0]) for c in experience_map.loop_candidates(near, planar_step)] if near else []
+        if not gated:
+            return (*none, "birdseye_no_candidate")
+        key = query.ring_key()
+        scored = []
+        for v in gated:
+            ring = self._ring_keys.get(v)
+            if ring is None:
+                ring = self._submap(v, -half, half, poses, path_m, keyframe_of).ring_key()
+                self._ring_keys[v] = ring
+            scored.append((float(np.abs(ring - key).sum()), v))
+        scored.sort()
+        chosen: list[int] = []
+        for _, v in scored:
+            # Distinct places: candidates a submap's half-span apart along the path.
+            if all(abs(path_m[v] - path_m[u]) >= half for u in chosen):
+                chosen.append(v)
+            if len(chosen) == cfg.birdseye_candidates:
+                break
+        why = "birdseye_no_candidate"
+        here = experience_map.world_from_agent
+        if here is None:
+            return (*none, "")
+        agent = se2_compose(np.array(here), np.array(planar_step))
+        agent_from_newest = se2_between(agent, poses[newest])
+        for v in chosen:
+            target = self._submap(v, -half, half, poses, path_m, keyframe_of)
+            if self_similarity(target, cfg) > cfg.birdseye_max_self_similarity:
+                why = "birdseye_featureless"
+                continue
+            prior = (se2_between(poses[v], poses[newest]), radius_m, yaw_rad)
+            registration, why = register(query, target, cfg, prior)
+            if registration is None:
+                continue
+            # The closure joins the agent to the vertex of the target's stretch nearest to where the
+            # registration puts it (the map's short path from the candidate to it is locally exact).
+            target_from_newest = np.array(registration.target_from_query)
+            members = np.flatnonzero(np.abs(path_m - path_m[v]) <= half)
+            at = se2_compose(poses[v], target_from_newest)
+            w = int(members[np.argmin(np.hypot(*(poses[members, :2] - at[:2]).T))])
+            w_from_newest = se2_compose(se2_between(poses[w], poses[v]), target_from_newest)
+            agent_from_target, information = _agent_from_target(
+                agent_from_newest, w_from_newest, registration.information
+            )
+            log.debug(
+                "vertex %d: bird's-eye registration onto %d: %s (inliers %d, overlap %.2f, peak ratio %.2f)",
+                newest,
+                w,
+                np.round(w_from_newest, 2),
+                registration.inliers,
+                registration.overlap,
+                registration.peak_ratio,
+            )
+            if cfg.birdseye_confirm and not self._confirmed(odometer, poses[w], agent_from_target, agent):
+                return (*none, "birdseye_unconfirmed")
+            return w, agent_from_target, information, "measured"
+        return (*none, why)
+
+    def _confirmed(self, odometer_m, world_from_target, agent_from_target, agent) -> bool:
+        """Whether an earlier registration, within 30 m of travel, implies the same correction of the map as
+        this one (each puts the agent within 1.5 m and 0.05 rad of the other's placement); this one is kept for
+        the next. Meant for a look-alike junction or bend, which fits one query while the next query, 5 m on,
+        sees its surroundings differ; consecutive queries along one street can fit the same wrong street
+        alike, and then only the map's consistency check stops them (docs/results.md, "Reverse loops")."""
+        measured = se2_compose(world_from_target, se2_between(np.asarray(agent_from_target), np.zeros(3)))
+        correction = se2_compose(measured, se2_between(agent, np.zeros(3)))
+        self._hypotheses = [h for h in self._hypotheses if odometer_m - h[0] <= _CONFIRM_WINDOW_M]
+        agreeing = False
+        for _, earlier in self._hypotheses:
+            off = se2_between(se2_compose(correction, agent), se2_compose(earlier, agent))
+            if np.hypot(off[0], off[1]) <= _AGREEMENT_M and abs(off[2]) <= _AGREEMENT_RAD:
+                agreeing = True
+        self._hypotheses.append((odometer_m, correction))
+        return agreeing
+
+
+def _agent_from_target(
+    agent_from_newest: np.ndarray, target_from_newest: np.ndarray, information: np.ndarray
+):
+    """agent_from_target = agent_from_newest ⊕ (target_from_newest)⁻¹ and its information, propagated through
+    the inverse and composition by their (numerical) Jacobian."""
+
+    def f(p: np.ndarray) -> np.ndarray:
+        return se2_compose(agent_from_newest, se2_between(p, np.zeros(3)))
+
+    value = f(target_from_newest)
+    jac = np.empty((3, 3))
+    for k in range(3):
+        d = np.zeros(3)
+        d[k] = 1e-6
+        diff = f(target_from_newest + d) - value
+        diff[2] = wrap_angle(diff[2])
+        jac[:, k] = diff / 1e-6
+    covariance = jac @ np.linalg.inv(information) @ jac.T
+    return tuple(float(x) for x in value), np.linalg.inv(covariance)

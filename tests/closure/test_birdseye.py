@@ -1,0 +1,164 @@
+"""Bird's-eye closures: a street driven back the other way is registered from its stereo structure with the
+right relative pose, a look-alike street elsewhere is refused, a submap with too few points never proposes,
+and the pipeline closes the reverse revisit as a metric loop (docs/map.md, "Bird's-eye closures").
+
+The route is rendered by the project itself (cached in the hippo_nav cache), with posts on the pavements
+(`poles`, docs/render.md): east along a street, a left corner, north, a U-turn into the other lane, south, a
+right corner and west back along the first street in its other lane. The first street is therefore seen in
+both directions, with a corner at one end."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hippo_nav.closure import ClosureConfig, KeyframeExtractor
+from hippo_nav.closure.birdseye import Submap, register, self_similarity, structure_points, submap
+from hippo_nav.datasets import KittiOdometry
+from hippo_nav.geometry import planar_from_pose, se2_between, wrap_angle
+from hippo_nav.io import write_kitti_poses
+from hippo_nav.pipeline import Pipeline, config_from_dict
+from hippo_nav.synthetic import default_cache_dir, drifting_odometry, planar_poses, render_cached
+from hippo_nav.vo.replay import ReplayOdometry
+
+STEP_M = 1.5
+# (length m, turn rad over it): east, left corner, north, U-turn into the other lane, south, right corner, west.
+ROUTE = [(45.0, 0.0), (8.0 * np.pi / 2, np.pi / 2), (40.0, 0.0), (1.5 * np.pi, np.pi), (40.0, 0.0),
+         (5.0 * np.pi / 2, -np.pi / 2), (45.0, 0.0)]  # fmt: skip
+
+
+def _route_poses() -> np.ndarray:
+    """(n, 3) planar poses every STEP_M along ROUTE (exact arcs)."""
+    fine = [(0.0, 0.0, 0.0)]
+    for length_m, turn_rad in ROUTE:
+        steps = max(int(np.ceil(length_m / 0.05)), 1)
+        ds, dyaw = length_m / steps, turn_rad / steps
+        for _ in range(steps):
+            x, y, yaw = fine[-1]
+            mid = yaw + dyaw / 2
+            fine.append((x + ds * np.cos(mid), y + ds * np.sin(mid), yaw + dyaw))
+    fine_arr = np.array(fine)
+    path = np.r_[0.0, np.cumsum(np.hypot(*np.diff(fine_arr[:, :2], axis=0).T))]
+    at = np.searchsorted(path, np.arange(0.0, path[-1], STEP_M))
+    return fine_arr[at]
+
+
+@pytest.fixture(scope="module")
+def out_and_back() -> KittiOdometry:
+    planar = _route_poses()
+    poses = planar_poses(planar[:, 0], planar[:, 1], planar[:, 2])
+    root = render_cached(poses, default_cache_dir() / "test_out_and_back_posts", "00", seed=5, poles=True)
+    return KittiOdometry(root, "00")
+
+
+@pytest.fixture(scope="module")
+def structure(out_and_back):
+    """Every frame's structure points and its ground-truth planar pose and path length."""
+    cfg = ClosureConfig()
+    extract = KeyframeExtractor(out_and_back.calibration, cfg)
+    points = [structure_points(extract(f.left, f.right).points_m, cfg) for f in out_and_back]
+    planar = planar_from_pose(out_and_back.ground_truth())
+    path_m = np.r_[0.0, np.cumsum(np.hypot(*np.diff(planar[:, :2], axis=0).T))]
+    return points, planar, path_m
+
+
+def _submap(structure, centre: int, lo_m: float, hi_m: float) -> Submap:
+    points, planar, path_m = structure
+    members = np.flatnonzero((path_m >= path_m[centre] + lo_m) & (path_m <= path_m[centre] + hi_m))
+    return submap(planar[centre], planar[members], [points[m] for m in members], 30.0)
+
+
+def _frame_near(planar: np.ndarray, xy: tuple[float, float], heading_rad: float) -> int:
+    """The frame nearest to `xy` among those heading within 45° of `heading_rad`."""
+    along = np.abs(wrap_angle(planar[:, 2] - heading_rad)) < np.pi / 4
+    distance = np.where(along, np.hypot(planar[:, 0] - xy[0], planar[:, 1] - xy[1]), np.inf)
+    return int(np.argmin(distance))
+
+
+def test_a_street_driven_back_the_other_way_registers_with_the_right_relative_pose(structure):
+    _, planar, _ = structure
+    cfg = ClosureConfig()
+    query_at = _frame_near(planar, (30.0, 3.0), np.pi)  # on the way back west, 15 m past the corner
+    target_at = _frame_near(planar, (30.0, 0.0), 0.0)  # the same place on the way out, heading east
+    query = _submap(structure, query_at, -cfg.birdseye_submap_m, 0.0)
+    target = _submap(structure, target_at, -cfg.birdseye_submap_m / 2, cfg.birdseye_submap_m / 2)
+    truth = se2_between(planar[target_at], planar[query_at])
+    assert abs(abs(truth[2]) - np.pi) < 0.1  # the two frames face opposite ways
+    # The odometry's prediction, 6 m and 0.2 rad off, inside a gate of 20 m and 1 rad.
+    prior = (truth + np.array([4.0, -4.5, 0.2]), 20.0, 1.0)
+    registration, why = register(query, target, cfg, prior)
+    assert registration is not None, why
+    error = se2_between(truth, np.array(registration.target_from_query))
+    assert np.hypot(error[0], error[1]) < 0.5, (registration, truth)
+    assert abs(error[2]) < np.radians(2.0), (registration, truth)
+    # Its information is finite and positive, and honest enough to keep the error inside a χ² gate.
+    assert np.all(np.linalg.eigvalsh(registration.information) > 0)
+    chi2 = float(error @ registration.information @ error)
+    assert chi2 < 16.0, chi2
+    # Without the prior (every heading, shifts up to 15 m) the same alignment is found.
+    free, why = register(query, target, cfg)
+    assert free is not None, why
+    assert np.hypot(*se2_between(truth, np.array(free.target_from_query))[:2]) < 0.5
+
+
+def test_a_look_alike_street_elsewhere_is_refused(structure):
+    _, planar, _ = structure
+    cfg = ClosureConfig()
+    query_at = _frame_near(planar, (30.0, 3.0), np.pi)
+    query = _submap(structure, query_at, -cfg.birdseye_submap_m, 0.0)
+    # A straight street of walls alone (two noisy lines 14 m apart, as stereo sees them) slides along itself:
+    # it is refused before any registration; the first street with its posts does not slide.
+    rng = np.random.default_rng(0)
+    along = rng.uniform(-25.0, 15.0, 2000)
+    side = np.where(rng.random(2000) < 0.5, 7.0, -7.0) + rng.normal(0.0, 0.3, 2000)
+    walls = Submap(np.stack([along, side], axis=1).astype(np.float32), 30.0)
+    assert self_similarity(walls, cfg) > cfg.birdseye_max_self_similarity
+    straight_at = _frame_near(planar, (9.0, 0.0), 0.0)
+    assert self_similarity(_submap(structure, straight_at, -9.0, 3.0), cfg) < cfg.birdseye_max_self_similarity
+    # The north street, 14 m wide like the first one, with the U-turn's end wall ahead: no alignment fits.
+    elsewhere = _frame_near(planar, (53.0, 30.0), np.pi / 2)
+    target = _submap(structure, elsewhere, -10.0, 10.0)
+    wrong, why = register(query, target, cfg)
+    assert wrong is None, (wrong, why)
+    # The corner seen from the way out, placed by the odometry 60 m from where it is: the gate keeps the
+    # search away from the true alignment, and what is left does not fit.
+    target_at = _frame_near(planar, (30.0, 0.0), 0.0)
+    target = _submap(structure, target_at, -cfg.birdseye_submap_m / 2, cfg.birdseye_submap_m / 2)
+    truth = se2_between(planar[target_at], planar[query_at])
+    far = (truth + np.array([60.0, 0.0, 0.0]), 20.0, 0.35)
+    registration, _ = register(query, target, cfg, far)
+    assert registration is None, registration
+
+
+def test_a_submap_with_too_few_points_never_proposes(structure):
+    cfg = ClosureConfig()
+    _, planar, _ = structure
+    query_at = _frame_near(planar, (30.0, 3.0), np.pi)
+    query = _submap(structure, query_at, -cfg.birdseye_submap_m, 0.0)
+    sparse = Submap(query.points_m[: cfg.birdseye_min_points - 1], query.radius_m)
+    assert register(sparse, query, cfg) == (None, "birdseye_few_points")
+    assert register(query, sparse, cfg) == (None, "birdseye_few_points")
+    empty = Submap(np.zeros((0, 2), np.float32), 30.0)
+    assert register(empty, empty, cfg) == (None, "birdseye_few_points")
+
+
+def test_the_pipeline_closes_the_reverse_revisit(out_and_back, tmp_path):
+    # A drifting odometry (1 % long, turning left), replayed: the map must close the way back onto the way
+    # out from structure alone (no view is familiar the other way round) and pull the end back to the start.
+    truth = out_and_back.ground_truth()
+    drifted = drifting_odometry(truth, scale_error=0.03, yaw_bias_deg_per_frame=0.15)
+    path = write_kitti_poses(tmp_path / "odometry.txt", drifted)
+    base = {"output": {"figures": False, "save_map": False}}
+    results = {}
+    for on in (False, True):
+        config = config_from_dict({**base, "closure": {"birdseye": on}})
+        results[on] = Pipeline(out_and_back, config, odometry=ReplayOdometry(path, out_and_back)).run(None)
+    metrics = {on: r.metrics for on, r in results.items()}
+    notes = metrics[True]["closure_attempts"]
+    assert notes.get("accepted_birdseye", 0) >= 1, notes
+    assert metrics[False]["loop_closures"] == 0
+    quality = metrics[True]["closure_quality"]
+    assert quality["precision"] == 1.0, quality
+    odometry_ate = metrics[True]["errors"]["vo"]["ate_2d_m"]
+    corrected_ate = metrics[True]["errors"]["corrected"]["ate_2d_m"]
+    assert corrected_ate < 0.5 * odometry_ate, (corrected_ate, odometry_ate)
+    assert metrics[False]["errors"]["corrected"]["ate_2d_m"] > 0.9 * odometry_ate
