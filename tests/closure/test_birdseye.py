@@ -162,3 +162,20 @@ def test_the_pipeline_closes_the_reverse_revisit(out_and_back, tmp_path):
     corrected_ate = metrics[True]["errors"]["corrected"]["ate_2d_m"]
     assert corrected_ate < 0.5 * odometry_ate, (corrected_ate, odometry_ate)
     assert metrics[False]["errors"]["corrected"]["ate_2d_m"] > 0.9 * odometry_ate
+
+
+def test_a_failing_birdseye_attempt_costs_its_closure_not_the_run(out_and_back, monkeypatch, caplog):
+    from hippo_nav.closure.birdseye import BirdsEyeSearch
+
+    def broken(self, *args):
+        raise np.linalg.LinAlgError("singular matrix")
+
+    monkeypatch.setattr(BirdsEyeSearch, "propose", broken)
+    config = config_from_dict(
+        {"output": {"figures": False, "save_map": False}, "closure": {"birdseye": True}}
+    )
+    with caplog.at_level("WARNING", logger="hippo_nav.pipeline"):
+        result = Pipeline(out_and_back, config).run(None)
+    assert result.metrics["frames"] == len(out_and_back)
+    assert "bird's-eye attempt failed" in caplog.text
+    assert result.metrics["closure_attempts"].get("accepted_birdseye", 0) == 0

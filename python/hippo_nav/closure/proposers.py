@@ -229,9 +229,13 @@ class ViewCellPnpClosure:
         driven the other way the stored state holds the opposite heading."""
         if not self.config.birdseye:
             return attempt
-        vertex, agent_from_target, information, why = self.birdseye.propose(
-            context.experience_map, context.planar_step, self._keyframe
-        )
+        try:
+            vertex, agent_from_target, information, why = self.birdseye.propose(
+                context.experience_map, context.planar_step, self._keyframe
+            )
+        except Exception as err:  # noqa: BLE001 - a failed registration closes no loop; the run goes on
+            log.warning("frame %s: bird's-eye attempt failed (%s); no closure", context.frame.index, err)
+            return attempt
         if vertex is None:
             # The bird's-eye note when it tried (it says more than the view's), else the view's.
             return ClosureAttempt(None, why) if why else attempt
