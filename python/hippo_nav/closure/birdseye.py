@@ -146,14 +146,8 @@ def self_similarity(sub: Submap, cfg) -> float:
     if not len(sub):
         return 1.0
     cell = _COARSE_CELL_M
-    half = int(np.ceil(sub.radius_m / cell))
-    size = int(2 ** np.ceil(np.log2(4 * half)))
-    image = np.minimum(_raster(sub.points_m[None], cell, half, size), 1.0)[0]
-    fy = np.fft.fftfreq(size)[:, None]
-    fx = np.fft.rfftfreq(size)[None, :]
-    blur = np.exp(-2 * (np.pi * _BLUR_M / cell) ** 2 * (fx**2 + fy**2))
-    f = np.fft.rfft2(image) * blur
-    auto = np.fft.irfft2(np.abs(f) ** 2, s=(size, size))
+    f, _, size = _blurred_occupancy_spectra(sub.points_m[None], sub.radius_m)
+    auto = np.fft.irfft2(np.abs(f[0]) ** 2, s=(size, size))
     shift = np.fft.fftfreq(size, 1.0 / size) * cell
     ring = np.abs(np.hypot(shift[:, None], shift[None, :]) - _PROBE_M) <= 0.5 * cell
     return float(auto[ring].max() / auto[0, 0]) if auto[0, 0] > 0 else 1.0
@@ -225,6 +219,21 @@ def _raster(points_m: np.ndarray, cell_m: float, half_cells: int, size: int, sta
     return counts.reshape(stack, size, size).astype(np.float32)
 
 
+def _blurred_occupancy_spectra(points_m: np.ndarray, radius_m: float) -> tuple[np.ndarray, int, int]:
+    """(spectra (stack, size, size//2 + 1), half cells, size) of the occupancy images of (stack, n, 2) points
+    within `radius_m`, in `_COARSE_CELL_M` cells, blurred by a Gaussian of `_BLUR_M` (one product in the
+    Fourier domain). Occupancy, not counts: a wall seen from many vertices must not outweigh one seen once.
+    The images are zero-padded to `size` ≥ 4·half, so correlations of two of them do not wrap around."""
+    cell = _COARSE_CELL_M
+    half = int(np.ceil(radius_m / cell))
+    size = int(2 ** np.ceil(np.log2(4 * half)))
+    occupancy = np.minimum(_raster(points_m, cell, half, size, len(points_m)), 1.0)
+    fy = np.fft.fftfreq(size)[:, None]
+    fx = np.fft.rfftfreq(size)[None, :]
+    blur = np.exp(-2 * (np.pi * _BLUR_M / cell) ** 2 * (fx**2 + fy**2))
+    return np.fft.rfft2(occupancy) * blur, half, size
+
+
 def _coarse(
     query_m: np.ndarray, target_m: np.ndarray, radius_m: float, cfg, prior
 ) -> tuple[float, np.ndarray, float]:
@@ -233,7 +242,7 @@ def _coarse(
     that the prior admits too."""
     cell = _COARSE_CELL_M
     half = int(np.ceil(radius_m / cell))
-    size = int(2 ** np.ceil(np.log2(4 * half)))  # linear (not cyclic) correlation of 2·half-cell images
+    size = int(2 ** np.ceil(np.log2(4 * half)))  # as `_blurred_occupancy_spectra` pads
     steps = int(_ROTATIONS)
     all_angles = 2 * np.pi * np.arange(steps) / steps
     shift = np.fft.fftfreq(size, 1.0 / size)
@@ -251,15 +260,8 @@ def _coarse(
     rotated = np.stack(
         [c * query_m[:, 0] - s * query_m[:, 1], s * query_m[:, 0] + c * query_m[:, 1]], axis=-1
     )
-    # Occupancy, not counts: a wall seen from many vertices must not outweigh one seen once.
-    q = np.minimum(_raster(rotated, cell, half, size, len(index)), 1.0)
-    t = np.minimum(_raster(target_m[None], cell, half, size), 1.0)
-    # Both images blurred by a Gaussian of `_BLUR_M` (in the Fourier domain, as one product).
-    fy = np.fft.fftfreq(size)[:, None]
-    fx = np.fft.rfftfreq(size)[None, :]
-    sigma_cells = _BLUR_M / cell
-    blur = np.exp(-2 * (np.pi * sigma_cells) ** 2 * (fx**2 + fy**2))
-    fq, ft = np.fft.rfft2(q) * blur, np.fft.rfft2(t) * blur
+    fq, _, _ = _blurred_occupancy_spectra(rotated, radius_m)
+    ft, _, _ = _blurred_occupancy_spectra(target_m[None], radius_m)
     corr = np.fft.irfft2(np.conj(fq) * ft, s=(size, size))  # corr[k, s] = Σ_x Q_k(x)·T(x + s)
     # Norms of the blurred images by Parseval (rfft halves count twice, but for the first and Nyquist columns).
     weight = np.full(fq.shape[-1], 2.0)
