@@ -2,7 +2,7 @@
 
 The per-frame system never starts threads. A part that has slow work whose result is needed only later
 (a new vertex's stereo keyframe is first used when the agent comes back) submits it to the worker the
-runner gives it: the front end's worker thread when the front end runs ahead (`overlap_front_end`), else
+runner gives it: the front end's slow-work thread when the front end runs ahead (`overlap_front_end`), else
 `InlineWorker`, which does the work at once. Either way the work gets the same inputs and gives the same
 result, so the threads never change the numbers.
 """

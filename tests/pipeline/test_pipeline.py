@@ -74,6 +74,21 @@ def test_a_short_run_is_deterministic_and_writes_every_result(demo, tmp_path):
         return measure(frame)
 
     overlapped.odometry.process = process  # type: ignore[method-assign]
+    # The odometry's worker is a frame's critical path: the views are described on the loader and a new
+    # vertex's keyframe is extracted on a thread of its own, neither on the odometry's nor the calling one.
+    work_threads: dict[str, set[int]] = {"describe": set(), "keyframe": set()}
+
+    def on_thread(name, work):
+        def run(*args):
+            work_threads[name].add(threading.get_ident())
+            return work(*args)
+
+        return run
+
+    view_cells, closure = overlapped.system.view_cells, overlapped.system.closure
+    assert view_cells.describe_on_worker
+    view_cells.describe = on_thread("describe", view_cells.describe)  # type: ignore[method-assign]
+    closure.extract = on_thread("keyframe", closure.extract)  # type: ignore[attr-defined]
     first = overlapped.run(tmp_path / "a")
     sequential = config.model_copy(update={"overlap_front_end": False})
     # Frames are loaded ahead on one thread of their own, beside the odometry's: each once, in order (a bag
@@ -82,6 +97,11 @@ def test_a_short_run_is_deterministic_and_writes_every_result(demo, tmp_path):
     readers = {thread for _, thread in data.reads}
     assert len(readers) == 1 and threading.get_ident() not in readers
     assert len(vo_threads) == 1 and not vo_threads & (readers | {threading.get_ident()})
+    assert work_threads["describe"] == readers
+    keyframe_threads = work_threads["keyframe"]
+    assert len(keyframe_threads) == 1 and not keyframe_threads & (
+        vo_threads | readers | {threading.get_ident()}
+    )
     data.reads.clear()
     second = Pipeline(data, sequential).run(tmp_path / "b")
     np.testing.assert_array_equal(first.corrected_world_from_camera, second.corrected_world_from_camera)

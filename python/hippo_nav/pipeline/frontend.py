@@ -13,16 +13,18 @@ keyframes apply it too), `params` (a pydantic model written into `config.json`).
 step (constant-velocity prior) and flags the frame "failed".
 
 `FrontEnd` loads frames two ahead of the back end and measures their odometry one frame ahead, each on its
-own worker thread (and describes the view ahead when the view descriptor asks for it,
-`describe_on_worker`). The odometry only looks at images, never at the networks or the map, so frame k+1's
+own worker thread; the loader also describes the view when the view descriptor asks for it
+(`describe_on_worker`). The odometry only looks at images, never at the networks or the map, so frame k+1's
 VO (OpenCV releases the interpreter) can run while the networks and the map (Rust, also without the
 interpreter) process frame k, and frame k+2's images are decoded meanwhile (PNG decoding releases it too).
 One loader and one VO worker keep the frames in order, so the results do not depend on the threads, and
-only the loader reads the dataset (a bag reader need not be thread-safe). The VO worker is also the
-`Worker` the system hands slow work to (a new vertex's keyframe). Without the overlap
-(`config.overlap_front_end = false`) everything runs on the calling thread. An error of a later frame (a
-corrupt image) surfaces when the back end asks for that frame, after the frames before it are done, as
-without the overlap.
+only the loader reads the dataset (a bag reader need not be thread-safe). A third thread is the `Worker`
+the system hands slow work to (a new vertex's keyframe). The VO worker is the critical path of a frame
+(the other stages take less than half its time), so nothing else runs on it: on KITTI-size images a
+keyframe extraction averaged 13 ms a frame and a view description 6 ms, which on the VO worker made every
+frame that much longer. Without the overlap (`config.overlap_front_end = false`) everything runs on the
+calling thread. An error of a later frame (a corrupt image) surfaces when the back end asks for that frame,
+after the frames before it are done, as without the overlap.
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any, NamedTuple, Protocol, TypeVar
 
 import numpy as np
 
@@ -135,6 +137,12 @@ class OdometryGuard:
         return step, status
 
 
+class _Loaded(NamedTuple):
+    frame: StereoFrame
+    load_s: float
+    view_description: Any  # None: not made ahead
+
+
 @dataclass(frozen=True)
 class FrontResult:
     """A loaded frame and what the front end measured of it, with the time loading and odometry took."""
@@ -170,25 +178,27 @@ class FrontEnd:
         self._overlap = overlap
         self._pool: ThreadPoolExecutor | None = None
         self._loader: ThreadPoolExecutor | None = None
+        self._slow: ThreadPoolExecutor | None = None
         self._next: tuple[int, Future[FrontResult]] | None = None
-        self._loads: dict[int, Future[tuple[StereoFrame, float]]] = {}
+        self._loads: dict[int, Future[_Loaded]] = {}
 
     def __enter__(self) -> Self:
         if self._overlap:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hippo-nav-front")
             self._loader = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hippo-nav-load")
+            self._slow = ThreadPoolExecutor(max_workers=1, thread_name_prefix="hippo-nav-slow")
         return self
 
     @property
     def worker(self) -> Worker:
-        """The worker thread (after the frames already asked for) when overlapping, else `INLINE`."""
-        return self if self._pool is not None else INLINE
+        """The slow-work thread (in the order submitted) when overlapping, else `INLINE`."""
+        return self if self._slow is not None else INLINE
 
     def submit(self, work: Callable[..., T], *args: Any) -> Future[T]:
-        """Run `work(*args)` on the worker, after the frames already asked for (overlapping only)."""
-        if self._pool is None:
+        """Run `work(*args)` on the slow-work thread, after the work already submitted (overlapping only)."""
+        if self._slow is None:
             return INLINE.submit(work, *args)
-        return self._pool.submit(work, *args)
+        return self._slow.submit(work, *args)
 
     def get(self, i: int) -> FrontResult:
         """Frame `i`'s front-end result; starts frame i+1's."""
@@ -205,30 +215,30 @@ class FrontEnd:
         # Finish what is queued (the next frame's odometry, keyframes being extracted: a few ms each) so
         # that nothing touches the VO after the run and every vertex gets its keyframe; a frame loaded
         # ahead and never used is dropped.
-        for pool in (self._loader, self._pool):
+        for pool in (self._loader, self._pool, self._slow):
             if pool is not None:
                 pool.shutdown(wait=True)
 
     # ----------------------------------------------------------------------------------------------
-    def _load(self, i: int) -> tuple[StereoFrame, float]:
-        """Frame `i` and the seconds its loading took."""
+    def _load(self, i: int) -> _Loaded:
+        """Frame `i`, the seconds its loading took, and its view description when made ahead."""
         clock = time.perf_counter()
         frame = self.dataset[i]
-        return frame, time.perf_counter() - clock
+        load_s = time.perf_counter() - clock
+        return _Loaded(frame, load_s, self._describe(frame) if self._describe is not None else None)
 
-    def _front(self, i: int, loaded: Future[tuple[StereoFrame, float]] | None = None) -> FrontResult:
+    def _front(self, i: int, loaded: Future[_Loaded] | None = None) -> FrontResult:
         """Load frame `i` (or take it from `loaded`, loaded ahead) and measure its odometry step."""
-        frame, load_s = self._load(i) if loaded is None else loaded.result()
+        frame, load_s, description = self._load(i) if loaded is None else loaded.result()
         clock = time.perf_counter()
         step, vo_status = self.odometry.measure(frame)
         vo_s = time.perf_counter() - clock
         # Read now: with the front end a frame ahead, the odometry moves on before the back end is done.
         features_px = tracked_pixels(self.odometry.odometry)
         offset_px = disparity_offset_px(self.odometry.odometry)
-        description = self._describe(frame) if self._describe is not None else None
         return FrontResult(frame, step, vo_status, features_px, offset_px, description, load_s, vo_s)
 
-    def _loaded(self, i: int) -> Future[tuple[StereoFrame, float]]:
+    def _loaded(self, i: int) -> Future[_Loaded]:
         """Frame `i` being loaded (asked for now if it was not yet), and frame i+1 asked for."""
         assert self._loader is not None
         for j in (i, i + 1):

@@ -8,7 +8,7 @@ descriptor that scores similarity reports `1 − score`), and how much the camer
 matched view was stored (`relative_heading_rad`, counter-clockwise positive; 0 when it cannot tell).
 
 `describe` must depend on the frame alone (the images; the calibration is given when the descriptor is
-made), so it may run ahead of the back end on the front end's worker thread: a descriptor says so with
+made), so it may run ahead of the back end on the front end's loader thread: a descriptor says so with
 `describe_on_worker = True` (e.g. ORB features, a few milliseconds a frame). `observe` runs on the back end,
 in frame order, and may store the view; `candidates` restricts the match to those cell ids (the cells seen
 near where the map puts the agent; None: every cell); `recent` names the candidates made on the passage
@@ -76,7 +76,7 @@ class Observation:
 
 class ViewDescriptor(Protocol):
     """Local view cells as the system drives them (module doc). `describe_on_worker`: whether `describe` may
-    run on the front end's worker, a frame ahead of the back end."""
+    run on the front end's loader thread, ahead of the back end."""
 
     describe_on_worker: ClassVar[bool]
 

@@ -187,7 +187,7 @@ class WordViewCells:
     `describe_image` a gray image), then `observe` the view (see the module doc)."""
 
     describe_on_worker: ClassVar[bool] = True
-    """ORB features cost a few milliseconds a frame and need the image alone: made on the front end's worker."""
+    """ORB features cost a few milliseconds a frame and need the image alone: made on the front end's loader thread."""
 
     def __init__(
         self,
