@@ -20,6 +20,13 @@ matches: the VO before the warped-window refinement, `vo.refine_matches`) and `w
 `--variant NAME=JSON` adds or replaces one (a `vo` section's overrides). Where the self-calibration moved the
 offset, `window_found_offset` drives the same frames with the offset it found, fixed from the first frame.
 
+`--perturbations K` measures how far apart two equally good runs land: each variant also drives every set K
+more times with the images perturbed by one gray level (each pixel +1, 0 or −1 at random, seeded by the
+perturbation and the frame), which no VO should care about. The table then gives each error as the value of
+the unperturbed run and the range over all K + 1 runs. A VO's whole-sequence ATE is a sum of small random
+errors that a different rounding sends another way: a difference between two variants within that range is
+not a difference (docs/vo.md, "How far apart equal runs land").
+
 Writes `vo.md` (the tables of docs/vo.md) and `vo.json` under `--out`. Not a test (no assertions; pytest does
 not collect it): a reproducible measurement on the shared data and the project's own renders.
 """
@@ -34,6 +41,7 @@ from pathlib import Path
 
 import numpy as np
 from hippo_nav.datasets import KittiOdometry
+from hippo_nav.datasets.base import StereoFrame
 from hippo_nav.metrics import KITTI_SEGMENT_LENGTHS_M, ate_rmse, interpolated_steps, relative_errors_kitti
 from hippo_nav.vo import StereoOdometry, VoParams
 
@@ -45,6 +53,31 @@ VARIANTS = {
     "window_klt": {"refine_matches": False},
     "window": {},  # the default
 }
+
+
+class Perturbed:
+    """`dataset` with each image changed by one gray level at random (+1, 0 or −1 per pixel, clipped to
+    0–255), seeded by `seed` and the frame: the same perturbation on every call."""
+
+    def __init__(self, dataset, seed: int) -> None:
+        self.dataset, self.seed = dataset, seed
+        self.calibration = dataset.calibration
+
+    def __len__(self) -> int:
+        return len(self.dataset)
+
+    def ground_truth(self) -> np.ndarray:
+        return self.dataset.ground_truth()
+
+    def __getitem__(self, i: int) -> StereoFrame:
+        frame = self.dataset[i]
+        rng = np.random.default_rng([self.seed, i])
+
+        def nudge(image: np.ndarray) -> np.ndarray:
+            step = rng.integers(-1, 2, size=image.shape, dtype=np.int16)
+            return np.clip(image.astype(np.int16) + step, 0, 255).astype(np.uint8)
+
+        return StereoFrame(frame.index, frame.timestamp_s, nudge(frame.left), nudge(frame.right))
 
 
 def run_vo(dataset, params: VoParams) -> tuple[np.ndarray, float, int, float]:
@@ -99,6 +132,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sequences", nargs="+", default=list(RENDERED), help="rendered sequences to run")
     parser.add_argument("--variant", action="append", default=[], help="NAME=JSON of vo overrides")
     parser.add_argument("--only", nargs="+", help="run only these variants")
+    parser.add_argument(
+        "--perturbations", type=int, default=0, help="extra runs per variant with one-gray-level image noise"
+    )
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
     variants = dict(VARIANTS)
@@ -134,10 +170,26 @@ def main(argv: list[str] | None = None) -> int:
         for name, overrides in variants.items():
             params = VoParams(**{**extra, **overrides})
             row = measure(dataset, params, lengths or KITTI_SEGMENT_LENGTHS_M, step, real)
+            if args.perturbations > 0:
+                runs = [row] + [
+                    measure(Perturbed(dataset, k), params, lengths or KITTI_SEGMENT_LENGTHS_M, step, real)
+                    for k in range(1, args.perturbations + 1)
+                ]
+                row["perturbed"] = {
+                    key: [run[key] for run in runs]
+                    for key in ("ate_2d_m", "ate_3d_m", "t_rel_percent", "r_rel_deg_per_100m")
+                }
             results[label][name] = row
             print(
                 f"{label:38s} {name:16s} "
-                + json.dumps({k: round(v, 3) if isinstance(v, float) else v for k, v in row.items()}),
+                + json.dumps(
+                    {
+                        k: round(v, 3) if isinstance(v, float) else v
+                        for k, v in row.items()
+                        if k != "perturbed"
+                    }
+                )
+                + (f" perturbed {json.dumps(row['perturbed'])}" if "perturbed" in row else ""),
                 flush=True,
             )
         # Where the self-calibration moved the offset: the same frames driven with the offset it found
@@ -174,11 +226,21 @@ def table(results: dict, variants: list[str]) -> str:
                 if r.get("interpolated_gt_steps")
                 else "same"
             )
+            ate_2d, ate_3d, t_rel, r_rel = (
+                _with_range(r, key) for key in ("ate_2d_m", "ate_3d_m", "t_rel_percent", "r_rel_deg_per_100m")
+            )
             lines.append(
-                f"| {label} | {name} | {r['ate_2d_m']:.2f} / {r['ate_3d_m']:.2f} | {r['t_rel_percent']:.2f} | "
-                f"{r['r_rel_deg_per_100m']:.2f} | {measured} | {r['disparity_offset_px']:+.2f} | {ratio:.2f} |"
+                f"| {label} | {name} | {ate_2d} / {ate_3d} | {t_rel} | {r_rel} | {measured} | "
+                f"{r['disparity_offset_px']:+.2f} | {ratio:.2f} |"
             )
     return "\n".join(lines) + "\n"
+
+
+def _with_range(row: dict, key: str) -> str:
+    """The unperturbed run's value, and with `--perturbations` the range over it and its repeats."""
+    value = f"{row[key]:.2f}"
+    runs = row.get("perturbed", {}).get(key)
+    return value + (f" [{min(runs):.2f}–{max(runs):.2f}]" if runs else "")
 
 
 if __name__ == "__main__":
