@@ -137,6 +137,8 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--out", type=Path, required=True)
     args = parser.parse_args(argv)
+    if args.perturbations < 0:
+        parser.error(f"--perturbations must be 0 or more, got {args.perturbations}")
     variants = dict(VARIANTS)
     for spec in args.variant:
         name, _, overrides = spec.partition("=")

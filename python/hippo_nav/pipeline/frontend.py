@@ -171,7 +171,7 @@ class FrontEnd:
     ) -> None:
         self.dataset = dataset
         self.odometry = odometry
-        # Views are described here only when the descriptor asks for it (it then runs a frame ahead).
+        # Views are described on the loader only when the descriptor asks for it (then with the images, ahead).
         self._describe = (
             view_cells.describe if view_cells is not None and view_cells.describe_on_worker else None
         )
