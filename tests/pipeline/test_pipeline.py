@@ -62,7 +62,7 @@ def test_config_round_trips_and_names_bad_fields(tmp_path):
 
 def test_a_short_run_is_deterministic_and_writes_every_result(demo, tmp_path):
     """Two runs give the same results, the second with the front end on the calling thread: running the
-    odometry a frame ahead (the default) changes nothing but the speed."""
+    odometry frames ahead (the default) changes nothing but the speed."""
     data = Frames(demo, 25)
     config = config_from_dict(QUIET)
     overlapped = Pipeline(data, config)

@@ -20,6 +20,7 @@ from hippo_nav.datasets import KittiOdometry
 from hippo_nav.engine import EngineConfig, SpatialMemory, ViewPatterns
 from hippo_nav.io import DatasetError
 from hippo_nav.pipeline import Pipeline, config_from_dict
+from hippo_nav.pipeline.frontend import VO_AHEAD
 from hippo_nav.synthetic import DEMO_SEQUENCE, demo_sequence
 from hippo_nav.vo import ReplayOdometry, StereoOdometry
 
@@ -156,8 +157,10 @@ def test_sigterm_and_sighup_keep_the_frames_processed(
     out = tmp_path / "out"
     assert _run_signalled_at_frame_8(demo, monkeypatch, out, signame, frames=30) == code
     metrics = json.loads((out / "metrics.json").read_text())
-    # The signal arrives while frame 8 loads, up to two frames ahead of the networks: 6 to 9 frames are done.
-    assert metrics["interrupted"] and metrics["interrupted_by"] == signame and 6 <= metrics["frames"] <= 9
+    # The signal arrives while frame 8 loads, up to VO_AHEAD + 1 frames ahead of the networks (the odometry
+    # runs VO_AHEAD ahead, the loader one more): 8 − (VO_AHEAD + 1) to 9 frames are done.
+    assert metrics["interrupted"] and metrics["interrupted_by"] == signame
+    assert 8 - (VO_AHEAD + 1) <= metrics["frames"] <= 9
     assert (out / "trajectory_corrected.kitti.txt").read_text().count("\n") == metrics["frames"]
     assert signal.getsignal(getattr(signal, signame)) is signal.SIG_DFL  # the handler is put back
 

@@ -275,3 +275,32 @@ def test_real_kitti_01_disparity_offset_and_the_bias_warning(shared_data):
             assert len(vo.warnings) == 1 and vo.stereo_bias_px < -0.03
     assert t_rel[0.0] > 8.0
     assert t_rel[1.5] <= 2.5
+
+
+@pytest.mark.parametrize("check_window_px, expected_px", [(None, 13), (9, 9)])
+def test_the_backward_checks_take_their_own_window_and_reject_a_wrong_track(
+    demo, monkeypatch, check_window_px, expected_px
+):
+    """`klt_check_window_px` sizes the forward–backward checks alone (None: KLT's window, 13 px at 320 px);
+    at either size a consistent track passes and a track moved 4 px along its row fails."""
+    import cv2
+
+    real = cv2.calcOpticalFlowPyrLK
+    a, b = demo[10].left, demo[11].left
+    pts = cv2.goodFeaturesToTrack(a, 200, 0.01, 7).reshape(-1, 2)
+    tracked, ok, _ = real(a, b, pts, None, winSize=(13, 13), maxLevel=3)
+    tracked, pts = tracked[ok.ravel() == 1], pts[ok.ravel() == 1]
+    wrong = tracked.copy()
+    wrong[:, 0] += 4.0
+    windows: list[tuple[int, int]] = []
+
+    def spy(*args, **kwargs):
+        windows.append(tuple(kwargs["winSize"]))
+        return real(*args, **kwargs)
+
+    vo = StereoOdometry(demo.calibration, VoParams(klt_check_window_px=check_window_px))
+    monkeypatch.setattr(cv2, "calcOpticalFlowPyrLK", spy)
+    assert len(pts) > 50
+    assert vo._track_back(b, a, tracked, pts).mean() > 0.8
+    assert vo._track_back(b, a, wrong, pts).mean() < 0.1
+    assert windows == [(expected_px, expected_px)] * 2

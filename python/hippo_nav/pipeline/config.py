@@ -214,7 +214,7 @@ class PipelineConfig(_Section):
     seed: int = Field(0, ge=0, le=2**31 - 1, description="one seed for every random choice of the run")
     overlap_front_end: bool = Field(
         True,
-        description="load frames two ahead and run the odometry one frame ahead of the networks and the "
+        description="load frames and run the odometry up to three frames ahead of the networks and the "
         "map, each on a worker thread (same results; they overlap on two cores)",
     )
     parts: PartsConfig = Field(default_factory=PartsConfig)

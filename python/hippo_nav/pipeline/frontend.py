@@ -12,11 +12,14 @@ keyframes apply it too), `params` (a pydantic model written into `config.json`).
 `OdometryGuard` is the odometry's failure policy: an exception or a non-finite step reuses the previous
 step (constant-velocity prior) and flags the frame "failed".
 
-`FrontEnd` loads frames two ahead of the back end and measures their odometry one frame ahead, each on its
-own worker thread; the loader also describes the view when the view descriptor asks for it
-(`describe_on_worker`). The odometry only looks at images, never at the networks or the map, so frame k+1's
-VO (OpenCV releases the interpreter) can run while the networks and the map (Rust, also without the
-interpreter) process frame k, and frame k+2's images are decoded meanwhile (PNG decoding releases it too).
+`FrontEnd` measures the odometry of the `VO_AHEAD` frames after the back end's (3), and loads one frame
+further, each on its own worker thread; the loader also describes the view when the view descriptor asks for
+it (`describe_on_worker`). The odometry only looks at images, never at the networks or the map, so frame
+k+1's VO (OpenCV releases the interpreter) can run while the networks and the map (Rust, also without the
+interpreter) process frame k, and later frames' images are decoded meanwhile (PNG decoding releases it too).
+A back end that takes longer than the odometry on some frame (a new vertex, a view to verify) no longer
+holds the odometry up: with one frame of slack it waited then; with three, it ran at 1.03× the frame rate on
+real KITTI 06 (docs/architecture.md, "Threads").
 One loader and one VO worker keep the frames in order, so the results do not depend on the threads, and
 only the loader reads the dataset (a bag reader need not be thread-safe). A third thread is the `Worker`
 the system hands slow work to (a new vertex's keyframe). The VO worker is the critical path of a frame
@@ -48,6 +51,11 @@ if TYPE_CHECKING:
 
 log = logging.getLogger("hippo_nav.pipeline")
 T = TypeVar("T")
+
+# Frames whose odometry is measured ahead of the back end. The back end's time per frame varies (a new
+# vertex, a view to verify, a closure) around a mean below the odometry's: with one frame ahead the odometry
+# waited whenever the back end took longer than it; a few frames of slack absorb that.
+VO_AHEAD = 3
 
 __all__ = [
     "FrontEnd",
@@ -179,7 +187,7 @@ class FrontEnd:
         self._pool: ThreadPoolExecutor | None = None
         self._loader: ThreadPoolExecutor | None = None
         self._slow: ThreadPoolExecutor | None = None
-        self._next: tuple[int, Future[FrontResult]] | None = None
+        self._fronts: dict[int, Future[FrontResult]] = {}  # frames whose odometry is asked for
         self._loads: dict[int, Future[_Loaded]] = {}
 
     def __enter__(self) -> Self:
@@ -201,15 +209,16 @@ class FrontEnd:
         return self._slow.submit(work, *args)
 
     def get(self, i: int) -> FrontResult:
-        """Frame `i`'s front-end result; starts frame i+1's."""
+        """Frame `i`'s front-end result; starts the odometry of the `VO_AHEAD` frames after it."""
         if self._pool is None:
             return self._front(i)
-        if self._next is not None and self._next[0] == i:
-            result = self._next[1].result()
-        else:
-            result = self._start(i).result()
-        self._next = (i + 1, self._start(i + 1)) if i + 1 < len(self.dataset) else None
-        return result
+        for stale in [j for j in self._fronts if j < i]:
+            self._fronts.pop(stale).cancel()  # frames skipped by the caller: not measured if not begun
+        result = self._fronts.pop(i, None) or self._start(i)
+        for j in range(i + 1, min(i + 1 + VO_AHEAD, len(self.dataset))):
+            if j not in self._fronts:
+                self._fronts[j] = self._start(j)
+        return result.result()
 
     def __exit__(self, *exc: object) -> None:
         # Finish what is queued (the next frame's odometry, keyframes being extracted: a few ms each) so
@@ -233,7 +242,7 @@ class FrontEnd:
         clock = time.perf_counter()
         step, vo_status = self.odometry.measure(frame)
         vo_s = time.perf_counter() - clock
-        # Read now: with the front end a frame ahead, the odometry moves on before the back end is done.
+        # Read now: with the front end frames ahead, the odometry moves on before the back end is done.
         features_px = tracked_pixels(self.odometry.odometry)
         offset_px = disparity_offset_px(self.odometry.odometry)
         return FrontResult(frame, step, vo_status, features_px, offset_px, description, load_s, vo_s)

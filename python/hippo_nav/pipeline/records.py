@@ -68,7 +68,7 @@ class RunRecord:
     snapshots: dict[int, dict[str, Any]] = field(default_factory=dict)
     # The run position (index into `frames`) at which each map vertex was made.
     vertex_position: dict[int, int] = field(default_factory=dict)
-    # Wall time of the frame loop (s): with the front end a frame ahead, less than the stages' sum.
+    # Wall time of the frame loop (s): with the front end frames ahead, less than the stages' sum.
     wall_s: float = 0.0
 
     def __len__(self) -> int:

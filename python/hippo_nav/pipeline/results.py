@@ -271,7 +271,7 @@ def timing(record: RunRecord) -> dict[str, Any]:
         "last_frames_ms": ms(slice(n - window, n)),
         "window_frames": window,
         "share_of_frame": {s: v / frame_total if frame_total > 0 else None for s, v in per_stage.items()},
-        # Throughput: frames over the loop's wall time (the front end runs a frame ahead, so this beats
+        # Throughput: frames over the loop's wall time (the front end runs frames ahead, so this beats
         # the stages' sum); `frames_per_s_sequential` is what the stages would give one after another.
         "frames_per_s": n / record.wall_s
         if record.wall_s > 0
