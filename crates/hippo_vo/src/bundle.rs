@@ -311,7 +311,8 @@ fn solve(
             let update = wa_inv * g_l[j];
             let mut rows = b.fixed_rows_mut::<6>(6 * ka);
             rows += update;
-            // S is symmetric: each pair of keyframes once, mirrored.
+            // S is symmetric and the Cholesky factorisation reads only its lower triangle: each pair of
+            // keyframes once, into the block below the diagonal (the diagonal block whole).
             for &c in obs_of_point {
                 let pc = observations[c].pose;
                 if pc < pa {
@@ -319,11 +320,12 @@ fn solve(
                 }
                 let kc = pc - fixed;
                 let block = wa_inv * h_pl[c].transpose();
-                let mut view = s.fixed_view_mut::<6, 6>(6 * ka, 6 * kc);
-                view -= block;
-                if kc != ka {
-                    let mut mirror = s.fixed_view_mut::<6, 6>(6 * kc, 6 * ka);
-                    mirror -= block.transpose();
+                if kc == ka {
+                    let mut view = s.fixed_view_mut::<6, 6>(6 * ka, 6 * ka);
+                    view -= block;
+                } else {
+                    let mut lower = s.fixed_view_mut::<6, 6>(6 * kc, 6 * ka);
+                    lower -= block.transpose();
                 }
             }
         }
