@@ -12,7 +12,7 @@ from hippo_nav.pipeline.frontend import VO_AHEAD, FrontEnd, OdometryGuard
 
 
 class _Frames:
-    """A dataset of `n` blank frames that counts its reads."""
+    """A dataset of `n` blank frames."""
 
     def __init__(self, n: int) -> None:
         self.n = n
