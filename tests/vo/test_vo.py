@@ -304,3 +304,29 @@ def test_the_backward_checks_take_their_own_window_and_reject_a_wrong_track(
     assert vo._track_back(b, a, tracked, pts).mean() > 0.8
     assert vo._track_back(b, a, wrong, pts).mean() < 0.1
     assert windows == [(expected_px, expected_px)] * 2
+
+
+def test_new_corners_are_spread_over_buckets_when_there_is_no_room_for_all(demo):
+    """`corner_bucket_px`: with more corners than room, every square gets its strongest corner before any gets
+    a second (the strongest overall crowd into the most contrasted part of the image); with room for all, the
+    corners are the same as without buckets."""
+    image = demo[5].left
+    none = np.zeros((0, 2), np.float32)
+    plain = StereoOdometry(demo.calibration, VoParams(corner_bucket_px=0))
+    spread = StereoOdometry(demo.calibration, VoParams(corner_bucket_px=32))
+    everything = plain._detect(image, 10_000, none)
+    np.testing.assert_array_equal(spread._detect(image, 10_000, none), everything)
+
+    def buckets(xy):
+        return set(zip((xy[:, 0] // 32).astype(int), (xy[:, 1] // 32).astype(int), strict=True))
+
+    occupied = buckets(everything)
+    wanted = len(occupied)
+    chosen = spread._detect(image, wanted, none)
+    strongest = plain._detect(image, wanted, none)
+    assert len(chosen) == wanted and buckets(chosen) == occupied  # one corner in every square
+    assert len(buckets(strongest)) < len(occupied)  # the strongest overall leave squares empty
+    # Within each square the one chosen is its strongest.
+    for x, y in chosen:
+        same = everything[(everything[:, 0] // 32 == x // 32) & (everything[:, 1] // 32 == y // 32)]
+        assert (x, y) == tuple(same[0])  # `everything` is ordered by score, strongest first

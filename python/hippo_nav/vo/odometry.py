@@ -114,6 +114,14 @@ class VoParams(ConfigSection):
     )
     feature_quality: float = Field(0.005, gt=0.0, lt=1.0, description="Shi–Tomasi quality level (shi_tomasi)")
     min_feature_distance_px: float = Field(7.0, gt=0.0, description="minimum distance between corners")
+    corner_bucket_px: int = Field(
+        0,
+        ge=0,
+        le=100_000,
+        description="when there are more new corners than room, spread them over squares of this side: the "
+        "strongest of each square first, then the second of each, and so on (far, faint texture keeps its "
+        "share); 0: the strongest overall",
+    )
     track_features: bool = Field(
         True,
         description="carry the inliers and their stereo depths into the next frame and detect corners only "
@@ -588,6 +596,20 @@ class StereoOdometry:
         ).astype(np.int64)
         order = np.lexsort((-score, cell))
         best_of_cell = order[np.r_[True, cell[order][1:] != cell[order][:-1]]]
+        if p.corner_bucket_px > 0 and len(best_of_cell) > wanted:
+            # More corners than room: each square's strongest, then each one's second, ... (ties by score).
+            side_b = p.corner_bucket_px
+            xy_b = xy[best_of_cell]
+            bucket = (xy_b[:, 1] // side_b).astype(np.int64) * (int(image.shape[1] // side_b) + 1) + (
+                xy_b[:, 0] // side_b
+            ).astype(np.int64)
+            by_bucket = np.lexsort((-score[best_of_cell], bucket))
+            starts = np.r_[True, bucket[by_bucket][1:] != bucket[by_bucket][:-1]]
+            first = np.maximum.accumulate(np.where(starts, np.arange(len(by_bucket)), 0))
+            rank = np.empty(len(by_bucket), np.int64)
+            rank[by_bucket] = np.arange(len(by_bucket)) - first
+            chosen = np.lexsort((-score[best_of_cell], rank))[:wanted]
+            best_of_cell = best_of_cell[np.sort(chosen)]
         return xy[best_of_cell[np.argsort(-score[best_of_cell], kind="stable")[:wanted]]]
 
     def _track(
