@@ -100,8 +100,8 @@ class VoParams(ConfigSection):
         ge=8,
         le=100_000,
         description="points per frame at most (tracked + new corners); 650 on KITTI-size images costs a quarter "
-        "less than 1 000 at the same accuracy within equal runs' spread (docs/vo.md, 'How many points'); "
-        "small images have fewer",
+        "less than 1 000, with the accuracy measured in docs/vo.md, 'How many points' (a little worse on the "
+        "real frames, most on KITTI 01 as given); small images have fewer",
     )
     corner_detector: Literal["fast", "shi_tomasi"] = Field(
         "fast", description="new corners: FAST, strongest per min-distance cell; or Shi–Tomasi (slower)"
@@ -348,6 +348,12 @@ _NO_IDS = np.zeros(0, np.int64)
 _NO_KEPT = (_NO_PIXELS, _NO_POINTS, _NO_IDS, np.zeros(0))
 
 
+def _grid_cell(xy: np.ndarray, side_px: float, width_px: int) -> np.ndarray:
+    """(n,) int64: the index of the `side_px` square of an image `width_px` wide that each pixel (x, y) lies in."""
+    columns = int(width_px // side_px) + 1
+    return (xy[:, 1] // side_px).astype(np.int64) * columns + (xy[:, 0] // side_px).astype(np.int64)
+
+
 class StereoOdometry:
     """`StereoOdometry(calibration, params).process(frame) -> VoStep`, one frame after another."""
 
@@ -590,24 +596,16 @@ class StereoOdometry:
         xy = cv2.KeyPoint_convert(keypoints)
         score = np.array([k.response for k in keypoints], np.float32)
         # The strongest corner of each cell of a min-distance grid, strongest cells first.
-        side = p.min_feature_distance_px
-        cell = (xy[:, 1] // side).astype(np.int64) * (int(image.shape[1] // side) + 1) + (
-            xy[:, 0] // side
-        ).astype(np.int64)
+        cell = _grid_cell(xy, p.min_feature_distance_px, image.shape[1])
         order = np.lexsort((-score, cell))
         best_of_cell = order[np.r_[True, cell[order][1:] != cell[order][:-1]]]
         if p.corner_bucket_px > 0 and len(best_of_cell) > wanted:
             # More corners than room: each square's strongest, then each one's second, ... (ties by score).
-            side_b = p.corner_bucket_px
-            xy_b = xy[best_of_cell]
-            bucket = (xy_b[:, 1] // side_b).astype(np.int64) * (int(image.shape[1] // side_b) + 1) + (
-                xy_b[:, 0] // side_b
-            ).astype(np.int64)
-            by_bucket = np.lexsort((-score[best_of_cell], bucket))
-            starts = np.r_[True, bucket[by_bucket][1:] != bucket[by_bucket][:-1]]
-            first = np.maximum.accumulate(np.where(starts, np.arange(len(by_bucket)), 0))
+            bucket = _grid_cell(xy[best_of_cell], p.corner_bucket_px, image.shape[1])
+            by_bucket = np.lexsort((-score[best_of_cell], bucket))  # squares in turn, strongest first
+            _, first, count = np.unique(bucket[by_bucket], return_index=True, return_counts=True)
             rank = np.empty(len(by_bucket), np.int64)
-            rank[by_bucket] = np.arange(len(by_bucket)) - first
+            rank[by_bucket] = np.arange(len(by_bucket)) - np.repeat(first, count)  # place within its square
             chosen = np.lexsort((-score[best_of_cell], rank))[:wanted]
             best_of_cell = best_of_cell[np.sort(chosen)]
         return xy[best_of_cell[np.argsort(-score[best_of_cell], kind="stable")[:wanted]]]
