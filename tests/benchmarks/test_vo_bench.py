@@ -32,7 +32,7 @@ PREVIOUS_VO = VoParams(
     corner_detector="shi_tomasi",
     klt_coarse_window_px=None,
     klt_short_levels=4,
-    klt_check_window_px=None,
+    klt_check_window_px="full",
     # Everything added since is pinned off too, or the baseline grows with every default it inherits (it
     # did: the window, the self-calibration and the refined matches had made it 1.4× slower).
     window_keyframes=0,

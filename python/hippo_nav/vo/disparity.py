@@ -28,12 +28,12 @@ import numpy as np
 
 from hippo_nav.vo.projection import pixel_rows
 
-__all__ = ["LIMIT_PX", "DisparityCalibration", "frame_offset_px"]
+__all__ = ["LIMIT_PX", "MAX_POINTS", "DisparityCalibration", "frame_offset_px"]
 
 LIMIT_PX = 5.0  # the range of `VoParams.disparity_offset_px`
 SETTLED_STRIDE = 5  # with a full pool, one frame in this many is fitted
 _ITERATIONS = 4
-_MAX_POINTS = 200  # a 0.03 px formal error per frame; the fit costs per point
+MAX_POINTS = 200  # a 0.03 px formal error per frame; the fit costs per point
 
 
 def frame_offset_px(
@@ -44,6 +44,7 @@ def frame_offset_px(
     has_right: np.ndarray,
     camera: tuple[float, float, float, float, float],
     huber_px: float,
+    reject_px: float | None = None,
 ) -> tuple[float, float] | None:
     """(offset px to add to the one in use, its formal standard error px), fitted to one frame's tracks
     (module doc), or None when the fit is not possible (too few points, a point behind a camera, a singular
@@ -58,8 +59,8 @@ def frame_offset_px(
     z0 = prev_points_m[:, 2]
     if len(z0) < 12 or not (z0 > 0).all():
         return None
-    if len(z0) > _MAX_POINTS:  # evenly thinned: deterministic
-        pick = np.linspace(0, len(z0) - 1, _MAX_POINTS).astype(np.int64)
+    if len(z0) > MAX_POINTS:  # evenly thinned: deterministic
+        pick = np.linspace(0, len(z0) - 1, MAX_POINTS).astype(np.int64)
         prev_points_m, left_px, right_u_px, has_right = (
             prev_points_m[pick],
             left_px[pick],
@@ -130,6 +131,20 @@ def frame_offset_px(
         offset += float(delta[6])
         if abs(delta[6]) < 1e-4:
             break
+    if reject_px is not None:
+        worst = np.zeros(n)
+        np.maximum.at(worst, point, np.abs(r))
+        keep = worst <= reject_px
+        if not keep.all():
+            return frame_offset_px(
+                cur_from_prev,
+                prev_points_m[keep],
+                left_px[keep],
+                right_u_px[keep],
+                has_right[keep],
+                camera,
+                huber_px,
+            )
     # The residuals' own scatter scales the formal variance (robust: from their median absolute value).
     sigma_px = 1.4826 * float(np.median(np.abs(r))) * np.sqrt(max(variance, 0.0))
     return (offset, sigma_px) if np.isfinite(offset) and np.isfinite(sigma_px) else None

@@ -53,7 +53,7 @@ from __future__ import annotations
 import logging
 from collections import deque
 from dataclasses import dataclass
-from typing import Literal, NamedTuple
+from typing import Annotated, Literal, NamedTuple
 
 import cv2
 import numpy as np
@@ -62,13 +62,16 @@ from pydantic import ConfigDict, Field
 from hippo_nav._core import HippoNavError, _refine_matches, _SlidingWindow
 from hippo_nav._defaults import ConfigSection
 from hippo_nav.geometry import planar_step
-from hippo_nav.vo.disparity import DisparityCalibration, frame_offset_px
+from hippo_nav.vo.disparity import MAX_POINTS, DisparityCalibration, frame_offset_px
 from hippo_nav.vo.projection import pixel_rows
 
 log = logging.getLogger("hippo_nav.vo")
 
 # A frame whose fit moves the offset by more than this is not measuring it (a bad set of tracks).
 _MAX_OFFSET_STEP_PX = 3.0
+# The forward–backward checks' window on images at least this wide (`klt_check_window_px`): a check starts
+# where a consistent track comes back to, so a small window does its job; on 320-px renders it did not.
+_SMALL_CHECK_FROM_PX, _SMALL_CHECK_PX = 640, 9
 # The self-calibration warns once when the offset it applies is this far from the configured one.
 _WARN_OFFSET_PX = 0.3
 # The stereo pair is judged once this many new-corner stereo matches from this many frames are pooled. Pooled
@@ -149,13 +152,13 @@ class VoParams(ConfigSection):
         description="KLT pyramid levels where the start is known to about a pixel: the backward check, "
         "and the right-image match of a tracked point at the disparity its motion predicts",
     )
-    klt_check_window_px: int | None = Field(
+    klt_check_window_px: Annotated[int, Field(ge=5, le=255)] | Literal["full"] | None = Field(
         None,
-        ge=5,
-        le=255,
-        description="KLT window side (odd) of the forward–backward checks; None: the full-resolution window. "
-        "9 takes the VO's time on KITTI images down by about a tenth, but made the windowed VO worse on the "
-        "320-px renders (docs/vo.md, 'A smaller window for the checks')",
+        description="KLT window side (odd, 5–255) of the forward–backward checks; 'full': the "
+        f"full-resolution window; None: {_SMALL_CHECK_PX} px on images from {_SMALL_CHECK_FROM_PX} px wide "
+        "(the VO about a tenth faster on KITTI images, as accurate since the self-calibration's fix), the "
+        "full window below (9 px made the windowed VO worse on the 320-px renders; docs/vo.md, 'A smaller "
+        "window for the checks')",
     )
     refine_matches: bool = Field(
         True,
@@ -206,6 +209,21 @@ class VoParams(ConfigSection):
         gt=0.0,
         description="a frame whose fit has a larger standard error is left out (it cannot tell an offset: "
         "a camera standing still; a moving car's frames have 0.01–0.04 px)",
+    )
+    disparity_calibration_gate_px: float = Field(
+        10.0,
+        ge=0.0,
+        description="each frame's fit takes every track within this reprojection error of the step, not only "
+        "PnP's inliers: RANSAC's gate is judged on depths made with the offset in use, so it keeps the points "
+        "whose noise hides the offset and drops those that show it (on KITTI 01 the inliers alone read 0.57 px "
+        "of about 1.05, these 1.02; docs/vo.md); 0: PnP's inliers",
+    )
+    disparity_calibration_reject_px: float = Field(
+        3.0,
+        ge=0.0,
+        description="after a frame's fit, the points with a residual beyond this are dropped and the fit is "
+        "repeated (the wide gate lets mistracks in: on the 06 render they moved the offset 0.13 px and back); "
+        "0: no refit",
     )
     disparity_calibration_deadband_px: float = Field(
         0.1,
@@ -340,6 +358,9 @@ class _Tracks:
     image_px: np.ndarray | None = None  # (n, 2) float32, where they are in the current left image
     ids: np.ndarray | None = None  # (n,) int64, their ids
     stereo_m: np.ndarray | None = None  # (n, 3) their points from the previous frame's disparity alone
+    # Every track that passed KLT's checks, inliers or not (the disparity self-calibration's candidates):
+    # (points_m, image_px, stereo_m) as above, and where the inliers are among them.
+    tracked: tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None = None
 
 
 _NO_PIXELS = np.zeros((0, 2), np.float32)
@@ -387,7 +408,12 @@ class StereoOdometry:
             "maxLevel": min(p.klt_short_levels, p.klt_levels),
             "criteria": criteria,
         }
-        check = (p.klt_check_window_px or w) | 1
+        check = p.klt_check_window_px
+        if check is None:
+            check = _SMALL_CHECK_PX if calibration.image_size_px[0] >= _SMALL_CHECK_FROM_PX else w
+        elif check == "full":
+            check = w
+        check |= 1
         self._klt_check = {**self._klt_short, "winSize": (check, check)}
         self._yaw_window: np.ndarray | None = None
         self._fast = cv2.FastFeatureDetector_create(p.fast_threshold, nonmaxSuppression=True)
@@ -739,21 +765,17 @@ class StereoOdometry:
         cur_from_prev[:3, 3] = tvec.ravel()
         # The inliers' right-image positions, KLT started at the disparity the pose predicts: they refine
         # the step and give the depths the points carry into the next frame.
-        predicted_z = self._project(object_points, cur_from_prev)[:, 2]
-        guess = image_px.copy()
-        predicted_disparity = self.fx * self.baseline_m / np.maximum(predicted_z, 1e-3)
-        guess[:, 0] -= (predicted_disparity - self.disparity_offset_px).astype(np.float32)
-        in_right, ok, _ = cv2.calcOpticalFlowPyrLK(
-            left.full, right.full, image_px, guess, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._klt_short
+        has_right, disparity, in_right = self._match_right(
+            left, right, image_px, object_points, cur_from_prev
         )
-        has_right, disparity, in_right = self._stereo_check(left, right, image_px, in_right, ok.ravel() == 1)
         if p.stereo_refinement:
             cur_from_prev = self._refine_stereo(cur_from_prev, object_points, image_px, in_right, has_right)
         # Judged on the previous frame's own stereo points: the window's refined ones are not what the
         # disparities measured.
         assert best.stereo_m is not None
         if p.disparity_self_calibration and self._calibration.wants_frame():
-            self._calibrate_disparity(cur_from_prev, best.stereo_m, image_px, in_right, has_right)
+            tracks = self._calibration_tracks(best, cur_from_prev, left, right, in_right, has_right)
+            self._calibrate_disparity(cur_from_prev, *tracks)
         self._judge_stereo_bias(cur_from_prev, best.stereo_m, disparity, has_right)
         rmse = self._rmse(cur_from_prev, object_points, image_px.astype(np.float64))
         kept = (
@@ -818,6 +840,7 @@ class StereoOdometry:
             image_px[idx],
             prev.ids[good][idx],
             prev.stereo_m[good][idx],
+            (object_points, image_px, prev.stereo_m[good], idx),
         )
 
     @property
@@ -843,6 +866,61 @@ class StereoOdometry:
         moved it (`disparity_self_calibration`, `hippo_nav.vo.disparity`)."""
         return self._calibration.offset_px
 
+    def _match_right(
+        self,
+        left: _Image,
+        right: _Image,
+        image_px: np.ndarray,
+        points_m: np.ndarray,
+        cur_from_prev: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """`_stereo_check`'s (matched mask, disparity px, right-image positions) of left pixels `image_px`
+        whose points `points_m` (previous camera) the step `cur_from_prev` moves there: KLT started at the
+        disparity the pose predicts, so a short search suffices."""
+        predicted_z = self._project(points_m, cur_from_prev)[:, 2]
+        guess = image_px.copy()
+        predicted_disparity = self.fx * self.baseline_m / np.maximum(predicted_z, 1e-3)
+        guess[:, 0] -= (predicted_disparity - self.disparity_offset_px).astype(np.float32)
+        in_right, ok, _ = cv2.calcOpticalFlowPyrLK(
+            left.full, right.full, image_px, guess, flags=cv2.OPTFLOW_USE_INITIAL_FLOW, **self._klt_short
+        )
+        return self._stereo_check(left, right, image_px, in_right, ok.ravel() == 1)
+
+    def _calibration_tracks(
+        self,
+        best: _Tracks,
+        cur_from_prev: np.ndarray,
+        left: _Image,
+        right: _Image,
+        in_right: np.ndarray,
+        has_right: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The tracks a frame's disparity-offset fit takes (`disparity_calibration_gate_px`): (previous
+        stereo points, current left pixels, right-image positions, matched mask), at most
+        `MAX_POINTS` of them, evenly thinned; the inliers' right matches (`in_right`, `has_right`) are
+        reused, the others are matched here."""
+        assert best.tracked is not None and best.stereo_m is not None and best.image_px is not None
+        if self.params.disparity_calibration_gate_px <= 0:
+            return best.stereo_m, best.image_px, in_right, has_right
+        points_m, image_px, stereo_m, inliers = best.tracked
+        error_px = np.linalg.norm(self._project(points_m, cur_from_prev)[:, :2] - image_px, axis=1)
+        near = np.flatnonzero(error_px < self.params.disparity_calibration_gate_px)
+        if len(near) > MAX_POINTS:  # the fit would thin them anyway: fewer to match
+            near = near[np.linspace(0, len(near) - 1, MAX_POINTS).astype(np.int64)]
+        as_inlier = np.full(len(points_m), -1)
+        as_inlier[inliers] = np.arange(len(inliers))
+        at = as_inlier[near]
+        reused = at >= 0
+        right_px = np.zeros((len(near), 2), np.float32)
+        matched = np.zeros(len(near), bool)
+        right_px[reused], matched[reused] = in_right[at[reused]], has_right[at[reused]]
+        others = near[~reused]
+        if len(others):
+            matched[~reused], _, right_px[~reused] = self._match_right(
+                left, right, image_px[others], points_m[others], cur_from_prev
+            )
+        return stereo_m[near], image_px[near], right_px, matched
+
     def _calibrate_disparity(
         self,
         cur_from_prev: np.ndarray,
@@ -863,6 +941,7 @@ class StereoOdometry:
             has_right,
             (self.fx, self.fy, self.cx, self.cy, self.baseline_m),
             p.ransac_reprojection_px,
+            p.disparity_calibration_reject_px or None,
         )
         if fitted is None or abs(fitted[0]) > _MAX_OFFSET_STEP_PX:
             return
