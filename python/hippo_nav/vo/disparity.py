@@ -7,7 +7,7 @@ points alike under wrong depths, so the motion measures δ where a scale error a
 invisible. KITTI 01 as the project has it needs about +1 px (its steps come out 15 % long without it),
 06 about +0.15–0.25 px (docs/vo.md); at 6 px of disparity, 0.1 px is 1.7 % of scale.
 
-Per tracked frame, `frame_offset_px` fits one extra offset ε to the frame's inlier tracks jointly with the
+Per tracked frame, `frame_offset_px` fits one extra offset ε to the frame's tracks jointly with the
 step and the inverse depth of every point — a two-frame stereo bundle adjustment: the previous frame's right
 column and the current frame's left and right pixels of each point (the previous left pixel fixes the
 point's ray). Fitting the depths too, rather than taking them from the noisy previous disparities, keeps
@@ -17,6 +17,12 @@ on renders with no offset at all; this fit +0.03). Per frame the estimate scatte
 median only when it is beyond `deadband_px` and three standard errors, judged when the pool has doubled:
 on a consistent rig the offset in use never moves (a render's scale changes by ~1 % for every 0.03 px at
 320×96 px).
+
+Which tracks: every one within a wide gate of the step (`VoParams.disparity_calibration_gate_px`), not PnP's
+inliers. RANSAC's tight gate is judged on depths made with the offset in use, so it keeps the points whose
+noise cancels that offset's error and drops the ones that show it; on those the fit read about 0.6–0.7 of an
+offset (docs/vo.md, "Which tracks the fit takes"). The mistracks a wide gate lets in are dropped by a refit
+without the points whose residuals stay large (`reject_px`).
 """
 
 from __future__ import annotations
@@ -53,7 +59,8 @@ def frame_offset_px(
     `prev_points_m` (n, 3): the points in the previous camera as its stereo pair measured them (the
     disparity in use applied); `left_px` (n, 2): their tracks in the current left image; `right_u_px` (n,):
     their current right-image columns, corrected by the offset in use, valid where `has_right`;
-    `camera` = (fx, fy, cx, cy, baseline_m); `cur_from_prev` the step's estimate to start from."""
+    `camera` = (fx, fy, cx, cy, baseline_m); `cur_from_prev` the step's estimate to start from. With
+    `reject_px`, the points with a residual beyond it after the fit are dropped and the fit repeated once."""
     fx, fy, cx, cy, baseline_m = camera
     fxb = fx * baseline_m
     z0 = prev_points_m[:, 2]
@@ -132,6 +139,8 @@ def frame_offset_px(
         if abs(delta[6]) < 1e-4:
             break
     if reject_px is not None:
+        # A point on the wrong texture keeps a large residual whatever its depth; the offset a right image
+        # is shifted by does not (the fit explains it). Measured from the last iteration's residuals.
         worst = np.zeros(n)
         np.maximum.at(worst, point, np.abs(r))
         keep = worst <= reject_px
@@ -156,8 +165,10 @@ class DisparityCalibration:
 
     The estimates since the last change are pooled (at most `window`): when their median is beyond
     `deadband_px` and beyond three standard errors of a median, the offset moves by it and the pool starts
-    again (estimates made against the old offset no longer apply). A frame's fit reads only part of a large
-    offset (about 0.7 of it, on KITTI 01 and 06), so a large one is reached in a few moves."""
+    again (estimates made against the old offset no longer apply). A frame's fit reads almost all of a large
+    offset (on KITTI 01 +1.0 of about +1.05 px), so a large one is reached in one or two moves; ten frames of a
+    real street can read ±0.5 px apart, so the offset in use also wanders by that much over a short drive
+    (docs/vo.md)."""
 
     def __init__(
         self, initial_px: float, window: int, min_frames: int, deadband_px: float, max_sigma_px: float
