@@ -53,27 +53,34 @@ pub fn find_bumps<T: Real>(pattern: &[T], n: usize, threshold_frac: f64) -> Vec<
         seeds.push([wrap_2pi(ax + sx / w), wrap_2pi(ay + sy / w)]);
     }
     // 2. Every active unit joins the nearest seed; refine centre, then variance around it.
-    let nearest = |x: usize, y: usize| -> usize {
-        let (tx, ty) = (angle(x), angle(y));
-        let mut best = (f64::INFINITY, 0);
-        for (i, s) in seeds.iter().enumerate() {
-            let d = wrap(tx - s[0]).powi(2) + wrap(ty - s[1]).powi(2);
-            if d < best.0 {
-                best = (d, i);
-            }
-        }
-        best.1
+    // The per-axis differences to each seed depend on one coordinate only: tabled once per column and
+    // row (n·seeds wraps instead of n²·seeds; the same numbers, the decoder's largest cost before).
+    let k = seeds.len();
+    let table = |axis: usize, around: &[[f64; 2]]| -> Vec<f64> {
+        (0..n)
+            .flat_map(|i| around.iter().map(move |c| wrap(angle(i) - c[axis])))
+            .collect()
     };
+    let (seed_dx, seed_dy) = (table(0, &seeds), table(1, &seeds));
     let mut owner = vec![usize::MAX; n * n];
-    let mut acc = vec![[0.0f64; 3]; seeds.len()];
+    let mut acc = vec![[0.0f64; 3]; k];
     for y in 0..n {
+        let dy = &seed_dy[y * k..][..k];
         for x in 0..n {
             let u = y * n + x;
             if p[u] > 0.0 {
-                let b = nearest(x, y);
+                let dx = &seed_dx[x * k..][..k];
+                let mut best = (f64::INFINITY, 0);
+                for i in 0..k {
+                    let d = dx[i].powi(2) + dy[i].powi(2);
+                    if d < best.0 {
+                        best = (d, i);
+                    }
+                }
+                let b = best.1;
                 owner[u] = b;
-                acc[b][0] += p[u] * wrap(angle(x) - seeds[b][0]);
-                acc[b][1] += p[u] * wrap(angle(y) - seeds[b][1]);
+                acc[b][0] += p[u] * dx[b];
+                acc[b][1] += p[u] * dy[b];
                 acc[b][2] += p[u];
             }
         }
@@ -83,14 +90,15 @@ pub fn find_bumps<T: Real>(pattern: &[T], n: usize, threshold_frac: f64) -> Vec<
         .zip(&acc)
         .map(|(s, a)| [wrap_2pi(s[0] + a[0] / a[2]), wrap_2pi(s[1] + a[1] / a[2])])
         .collect();
-    let mut var = vec![[0.0f64; 2]; seeds.len()];
+    let (centre_dx, centre_dy) = (table(0, &centres), table(1, &centres));
+    let mut var = vec![[0.0f64; 2]; k];
     for y in 0..n {
         for x in 0..n {
             let u = y * n + x;
             if owner[u] != usize::MAX {
                 let b = owner[u];
-                var[b][0] += p[u] * wrap(angle(x) - centres[b][0]).powi(2);
-                var[b][1] += p[u] * wrap(angle(y) - centres[b][1]).powi(2);
+                var[b][0] += p[u] * centre_dx[x * k + b].powi(2);
+                var[b][1] += p[u] * centre_dy[y * k + b].powi(2);
             }
         }
     }
