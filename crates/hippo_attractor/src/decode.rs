@@ -161,4 +161,45 @@ mod tests {
     fn silent_pattern_has_no_bump() {
         assert!(find_bumps(&[0.0f64; 16], 4, 0.3).is_empty());
     }
+
+    #[test]
+    fn tabled_differences_give_the_direct_sums_bit_for_bit() {
+        // The decoder tables each unit's per-axis differences to the seeds and centres; the assignment,
+        // centres and widths must equal the sums taken unit by unit (here recomputed directly from the
+        // decoder's own centres: every active unit joins the nearest one).
+        let n = 32;
+        let centres = [[0.3, 5.9], [2.0, 2.2], [4.4, 1.0], [5.5, 4.6]];
+        let pattern = gaussian_pattern(n, &centres, 0.4);
+        let bumps = find_bumps(&pattern, n, 0.3);
+        assert_eq!(bumps.len(), 4);
+        let angle = |i: usize| TAU * i as f64 / n as f64;
+        for b in &bumps {
+            let (mut mass, mut v) = (0.0, [0.0f64; 2]);
+            for y in 0..n {
+                for x in 0..n {
+                    let p = pattern[y * n + x];
+                    let own = bumps
+                        .iter()
+                        .map(|o| {
+                            let d = |a: usize| wrap(angle([x, y][a]) - o.mean_rad[a]).powi(2);
+                            d(0) + d(1)
+                        })
+                        .collect::<Vec<_>>();
+                    let nearest = own.iter().cloned().fold(f64::INFINITY, f64::min);
+                    let d = |a: usize| wrap(angle([x, y][a]) - b.mean_rad[a]).powi(2);
+                    if p > 0.0 && d(0) + d(1) == nearest {
+                        mass += p;
+                        v[0] += p * d(0);
+                        v[1] += p * d(1);
+                    }
+                }
+            }
+            // Units join the nearest *seed*, and the seeds sit within a fraction of a unit of the centres:
+            // the same units here, so the same sums.
+            assert_eq!(b.mass.to_bits(), mass.to_bits(), "{b:?}");
+            for (std, sum) in b.std_rad.iter().zip(v) {
+                assert_eq!(std.to_bits(), (sum / mass).sqrt().to_bits(), "{b:?}");
+            }
+        }
+    }
 }
