@@ -34,6 +34,7 @@ __all__ = [
     "_Vocabulary",
     "_WordCells",
     "__version__",
+    "_frame_offset",
     "_refine_matches",
     "default_params_json",
     "find_bumps",
@@ -128,6 +129,16 @@ class _SlidingWindow:
         right_u_px: npt.NDArray[np.float64],
     ) -> dict[str, Any]: ...
 
+def _frame_offset(
+    cur_from_prev: npt.NDArray[np.float64],
+    prev_points_m: npt.NDArray[np.float64],
+    left_px: npt.NDArray[np.float64],
+    right_u_px: npt.NDArray[np.float64],
+    has_right: npt.NDArray[np.bool_],
+    camera: tuple[float, float, float, float, float],
+    huber_px: float,
+    reject_px: float | None = None,
+) -> tuple[float, float] | None: ...
 def _refine_matches(
     image_a: npt.NDArray[np.uint8],
     image_b: npt.NDArray[np.uint8],

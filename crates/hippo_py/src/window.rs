@@ -3,13 +3,13 @@
 //! Poses cross as 4×4 float64 `camera_from_world` matrices; a keyframe's observations as landmark ids
 //! (n,) int64, left pixels (n, 2) float64 and right-image columns (n,) float64 (NaN: no right match).
 //! The adjustment runs with the interpreter released. `_refine_matches` refines KLT matches with a warped
-//! window (`hippo_vo::tracks`).
+//! window (`hippo_vo::tracks`); `_frame_offset` fits one frame's disparity offset (`hippo_vo::disparity`).
 use crate::convert::{flat_f64, rows_f64, to_numpy};
 use crate::errors::{to_py_err, HippoNavError};
 use hippo_vo::window::isometry_from_matrix;
 use hippo_vo::{
-    refine_matches, GrayImage, Observation, RefineParams, SlidingWindow, StereoCamera, WarpModel,
-    WindowParams,
+    frame_offset, refine_matches, GrayImage, Observation, OffsetTracks, RefineParams,
+    SlidingWindow, StereoCamera, WarpModel, WindowParams,
 };
 use nalgebra::Matrix4;
 use numpy::{
@@ -203,8 +203,75 @@ fn _refine_matches<'py>(
     Ok((to_numpy(py, out, &[n, 2])?, to_numpy(py, ok, &[n])?))
 }
 
+/// One frame's disparity offset fitted to its motion (see `hippo_vo::disparity`): `cur_from_prev` (4, 4)
+/// the step to start from; `prev_points_m` (n, 3), `left_px` (n, 2), `right_u_px` (n,) (finite; read where
+/// `has_right`), `has_right` (n,) bool; `camera` = (fx, fy, cx, cy, baseline_m). Returns (offset px, its
+/// standard error px), or None when the frame cannot be fitted. Private: used by
+/// `hippo_nav.vo.disparity.frame_offset_px`.
+#[pyfunction]
+#[pyo3(signature = (cur_from_prev, prev_points_m, left_px, right_u_px, has_right, camera, huber_px, reject_px=None))]
+#[allow(clippy::too_many_arguments)]
+fn _frame_offset(
+    py: Python<'_>,
+    cur_from_prev: PyReadonlyArrayDyn<'_, f64>,
+    prev_points_m: PyReadonlyArrayDyn<'_, f64>,
+    left_px: PyReadonlyArrayDyn<'_, f64>,
+    right_u_px: PyReadonlyArrayDyn<'_, f64>,
+    has_right: PyReadonlyArray1<'_, bool>,
+    camera: (f64, f64, f64, f64, f64),
+    huber_px: f64,
+    reject_px: Option<f64>,
+) -> PyResult<Option<(f64, f64)>> {
+    let (fx, fy, cx, cy, baseline_m) = camera;
+    let camera = StereoCamera::new(fx, fy, cx, cy, baseline_m).map_err(to_py_err)?;
+    let pose = flat_f64("cur_from_prev", &cur_from_prev, &[4, 4])?;
+    let (n, points) = rows_f64("prev_points_m", &prev_points_m, &[3])?;
+    let (n_left, left) = rows_f64("left_px", &left_px, &[2])?;
+    let (n_right, right) = rows_f64("right_u_px", &right_u_px, &[])?;
+    let has: Vec<bool> = has_right.as_array().iter().copied().collect();
+    if n_left != n || n_right != n || has.len() != n {
+        return Err(HippoNavError::new_err(format!(
+            "`prev_points_m` ({n}), `left_px` ({n_left}), `right_u_px` ({n_right}) and `has_right` ({}) must \
+             have one row per track",
+            has.len()
+        )));
+    }
+    for (name, value) in [
+        ("huber_px", huber_px),
+        ("reject_px", reject_px.unwrap_or(1.0)),
+    ] {
+        if !(value.is_finite() && value > 0.0) {
+            return Err(HippoNavError::new_err(format!(
+                "`{name}` = {value} must be finite and > 0"
+            )));
+        }
+    }
+    let rotation = nalgebra::Matrix3::from_fn(|r, c| pose[4 * r + c]);
+    let translation = nalgebra::Vector3::new(pose[3], pose[7], pose[11]);
+    let points: Vec<[f64; 3]> = points.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+    let left: Vec<[f64; 2]> = left.chunks_exact(2).map(|c| [c[0], c[1]]).collect();
+    let tracks = OffsetTracks {
+        prev_points_m: &points,
+        left_px: &left,
+        right_u_px: &right,
+        has_right: &has,
+    };
+    let fitted = py.detach(|| {
+        frame_offset(
+            &camera,
+            &rotation,
+            &translation,
+            &tracks,
+            huber_px,
+            reject_px,
+        )
+    });
+    Ok(fitted.map(|f| (f.offset_px, f.sigma_px)))
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<PySlidingWindow>()?;
     m.add_function(wrap_pyfunction!(_refine_matches, m)?)?;
+    m.add_function(wrap_pyfunction!(_frame_offset, m)?)?;
     Ok(())
 }

@@ -8,17 +8,20 @@
 //! Levenberg–Marquardt on the normal equations with the landmarks eliminated by the Schur complement.
 //!
 //! [`tracks`] refines the tracker's KLT matches with a warped window (a slanted road biases a square one).
+//! [`disparity`] fits one frame's stereo disparity offset to its motion (the self-calibration's measurement).
 //!
 //! Conventions: camera x right, y down, z forward (the left camera of a rectified pair); a pose is
 //! `camera_from_world`; pixels of the input resolution; the right camera sits `baseline_m` along +x.
 #![warn(missing_docs)]
 pub mod bundle;
 pub mod camera;
+pub mod disparity;
 pub mod error;
 pub mod tracks;
 pub mod window;
 
 pub use camera::StereoCamera;
+pub use disparity::{frame_offset, OffsetEstimate, OffsetTracks};
 pub use error::{Result, VoError};
 pub use tracks::{refine_matches, GrayImage, RefineParams, WarpModel};
 pub use window::{KeyframeOutcome, Observation, SlidingWindow, WindowParams};

@@ -29,16 +29,14 @@ from __future__ import annotations
 
 from collections import deque
 
-import cv2
 import numpy as np
 
-from hippo_nav.vo.projection import pixel_rows
+from hippo_nav._core import _frame_offset
 
 __all__ = ["LIMIT_PX", "MAX_POINTS", "DisparityCalibration", "frame_offset_px"]
 
 LIMIT_PX = 5.0  # the range of `VoParams.disparity_offset_px`
 SETTLED_STRIDE = 5  # with a full pool, one frame in this many is fitted
-_ITERATIONS = 4
 MAX_POINTS = 200  # a 0.03 px formal error per frame; the fit costs per point
 
 
@@ -61,8 +59,6 @@ def frame_offset_px(
     their current right-image columns, corrected by the offset in use, valid where `has_right`;
     `camera` = (fx, fy, cx, cy, baseline_m); `cur_from_prev` the step's estimate to start from. With
     `reject_px`, the points with a residual beyond it after the fit are dropped and the fit repeated once."""
-    fx, fy, cx, cy, baseline_m = camera
-    fxb = fx * baseline_m
     z0 = prev_points_m[:, 2]
     if len(z0) < 12 or not (z0 > 0).all():
         return None
@@ -74,89 +70,24 @@ def frame_offset_px(
             right_u_px[pick],
             has_right[pick],
         )
-        z0 = prev_points_m[:, 2]
-    n = len(z0)
-    ray = prev_points_m / z0[:, None]  # (x/z, y/z, 1): fixed by the previous left pixel
-    d_prev = fxb / z0  # the previous frame's disparity, offset in use applied
-    inverse_depth = 1.0 / z0
-    left = left_px.astype(np.float64)
-    right = np.asarray(right_u_px, np.float64)
-    with_right = np.flatnonzero(has_right)
-    everyone = np.arange(n)
-    rotation, translation = cur_from_prev[:3, :3].copy(), cur_from_prev[:3, 3].copy()
-    offset = 0.0
-    for _ in range(_ITERATIONS):
-        points = ray / inverse_depth[:, None]
-        x = points @ rotation.T + translation
-        if (x[:, 2] <= 0).any() or (inverse_depth <= 0).any():
-            return None
-        dx_dinverse = (-points / inverse_depth[:, None]) @ rotation.T
-        blocks = [
-            # previous right column: measured d_prev + ε against fx·b·ρ
-            (d_prev + offset - fxb * inverse_depth, np.zeros((n, 6)), np.ones(n), -fxb * np.ones(n), everyone)
-        ]
-        for axis, shift_m, rows, observed, offset_sign in (
-            (0, 0.0, everyone, left[:, 0], 0.0),
-            (1, 0.0, everyone, left[:, 1], 0.0),
-            (0, baseline_m, with_right, right[with_right], 1.0),
-        ):
-            residual, jac_pose, d_a, d_z = pixel_rows(x[rows], axis, shift_m, (fx, fy, cx, cy))
-            jac_point = d_a * dx_dinverse[rows, axis] + d_z * dx_dinverse[rows, 2]
-            # the current right column is corrected by ε too: observed − ε
-            blocks.append(
-                (
-                    residual - observed + offset_sign * offset,
-                    jac_pose,
-                    np.full(len(rows), offset_sign),
-                    jac_point,
-                    rows,
-                )
-            )
-        r = np.concatenate([b[0] for b in blocks])
-        jac = np.column_stack(
-            [np.concatenate([b[1] for b in blocks]), np.concatenate([b[2] for b in blocks])]
-        )
-        jac_inv = np.concatenate([b[3] for b in blocks])
-        point = np.concatenate([b[4] for b in blocks])
-        weight = np.where(np.abs(r) <= huber_px, 1.0, huber_px / np.maximum(np.abs(r), 1e-12))
-        # Normal equations with the point block eliminated (Schur complement; one unknown per point).
-        jw = jac * weight[:, None]
-        a = jw.T @ jac
-        g = jw.T @ r
-        d = np.bincount(point, weight * jac_inv**2, n) + 1e-12
-        b = np.stack([np.bincount(point, jw[:, k] * jac_inv, n) for k in range(7)])
-        g_point = np.bincount(point, weight * jac_inv * r, n)
-        reduced = a - (b / d) @ b.T
-        try:
-            delta = -np.linalg.solve(reduced, g - (b / d) @ g_point)
-            variance = float(np.linalg.inv(reduced)[6, 6])
-        except np.linalg.LinAlgError:
-            return None
-        inverse_depth = inverse_depth - (g_point + b.T @ delta) / d
-        update = cv2.Rodrigues(delta[:3])[0]
-        rotation, translation = update @ rotation, update @ translation + delta[3:6]
-        offset += float(delta[6])
-        if abs(delta[6]) < 1e-4:
-            break
-    if reject_px is not None:
-        # A point on the wrong texture keeps a large residual whatever its depth; the offset a right image
-        # is shifted by does not (the fit explains it). Measured from the last iteration's residuals.
-        worst = np.zeros(n)
-        np.maximum.at(worst, point, np.abs(r))
-        keep = worst <= reject_px
-        if not keep.all():
-            return frame_offset_px(
-                cur_from_prev,
-                prev_points_m[keep],
-                left_px[keep],
-                right_u_px[keep],
-                has_right[keep],
-                camera,
-                huber_px,
-            )
-    # The residuals' own scatter scales the formal variance (robust: from their median absolute value).
-    sigma_px = 1.4826 * float(np.median(np.abs(r))) * np.sqrt(max(variance, 0.0))
-    return (offset, sigma_px) if np.isfinite(offset) and np.isfinite(sigma_px) else None
+    if not (np.isfinite(prev_points_m).all() and np.isfinite(left_px).all()):
+        return None
+    has_right = np.asarray(has_right, bool)
+    # A column without a right match is never read; the fit takes only finite numbers.
+    right = np.where(has_right, np.asarray(right_u_px, np.float64), 0.0)
+    fx, fy, cx, cy, baseline_m = (float(c) for c in camera)
+    # The fit itself runs in Rust (hippo_vo::disparity): in numpy, nearly all of its ~3 ms a frame was
+    # per-call overhead on 200 points (docs/vo.md, "Disparity self-calibration").
+    return _frame_offset(
+        np.asarray(cur_from_prev, np.float64),
+        np.asarray(prev_points_m, np.float64),
+        np.asarray(left_px, np.float64),
+        right,
+        has_right,
+        (fx, fy, cx, cy, baseline_m),
+        float(huber_px),
+        None if reject_px is None else float(reject_px),
+    )
 
 
 class DisparityCalibration:
@@ -183,7 +114,7 @@ class DisparityCalibration:
 
     def wants_frame(self) -> bool:
         """Whether this frame should be fitted: every frame until the pool is full, then every
-        `SETTLED_STRIDE`-th (a rig's offset does not change from frame to frame; the fit costs ~1.5 ms)."""
+        `SETTLED_STRIDE`-th (a rig's offset does not change from frame to frame; a frame's tracks cost ~2 ms)."""
         self._offered += 1
         return (
             len(self._estimates_px) < (self._estimates_px.maxlen or 1) or self._offered % SETTLED_STRIDE == 0
