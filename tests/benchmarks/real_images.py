@@ -200,7 +200,7 @@ def _quantiles(values, low: bool = False) -> dict:
 
 
 # ------------------------------------------------------------------------------------- closure measure
-def closure_section(data: Path) -> dict:
+def closure_section(data: Path, descriptor: str = "orb") -> dict:
     from hippo_nav.closure import ClosureConfig, KeyframeExtractor, LoopMeasurer
     from hippo_nav.datasets import KittiOdometry
     from hippo_nav.geometry import planar_from_pose, wrap_angle
@@ -209,7 +209,7 @@ def closure_section(data: Path) -> dict:
     for sequence, offset in (("06", 0.0), ("01", 0.0), ("01", 1.0)):
         dataset = KittiOdometry(data / "kitti_odometry", sequence, 0, 51)
         gt = np.asarray(dataset.ground_truth())
-        config = ClosureConfig()
+        config = ClosureConfig(descriptor=descriptor)
         extract = KeyframeExtractor(dataset.calibration, config, offset)
         measurer = LoopMeasurer(dataset.calibration, config)
         keyframes = [extract(f.left, f.right) for f in (dataset[i] for i in range(len(dataset)))]
@@ -352,6 +352,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--data", type=Path, required=True, help="the shared data folder")
     parser.add_argument("--out", type=Path, default=Path("runs/real_images"))
     parser.add_argument("--sections", nargs="+", default=["corridor", "streets", "closure"])
+    parser.add_argument(
+        "--descriptor",
+        choices=["orb", "sift"],
+        default="orb",
+        help="the closure keyframes' (closure.descriptor)",
+    )
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)
     results = {}
@@ -360,7 +366,7 @@ def main(argv: list[str] | None = None) -> int:
     if "streets" in args.sections:
         results["streets"] = street_section(args.data)
     if "closure" in args.sections:
-        results["closure"] = closure_section(args.data)
+        results["closure"] = closure_section(args.data, args.descriptor)
     (args.out / "real_images.json").write_text(json.dumps(results, indent=1))
     if set(args.sections) >= {"corridor", "streets", "closure"}:
         (args.out / "real_images.md").write_text(markdown(results))

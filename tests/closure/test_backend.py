@@ -107,6 +107,22 @@ def test_a_revisit_the_view_cells_miss_is_closed_by_proximity(demo, tmp_path):
     assert errors["corrected"]["ate_2d_m"] < 0.5 * errors["vo"]["ate_2d_m"], errors
 
 
+def _moved_3m_forward_at(bar_of):
+    """`LoopMeasurer.measure` with every measurement made at the bar `bar_of(config)` moved 3 m forward, as
+    a wrong PnP pose from few matches would be; measurements at other bars (a confirming neighbour's) stay
+    true."""
+    measure = LoopMeasurer.measure
+
+    def wrong(self, target, current, min_inliers=None):
+        measurement, why = measure(self, target, current, min_inliers)
+        if measurement is None or min_inliers != bar_of(self.config):
+            return measurement, why
+        forward, left, yaw = measurement.agent_from_target
+        return dataclasses.replace(measurement, agent_from_target=(forward + 3.0, left, yaw)), why
+
+    return wrong
+
+
 def test_a_wrong_proximity_measurement_is_refused_when_its_neighbour_disagrees(demo, tmp_path, monkeypatch):
     # A wrong PnP pose that still fits the loop gate (on the 00 render at `strong` one was 3.5 m off, inside
     # its own covariance's χ² gate by far): every measurement at the proximity bar is moved 3 m forward, as
@@ -114,16 +130,7 @@ def test_a_wrong_proximity_measurement_is_refused_when_its_neighbour_disagrees(d
     # wrong closures are accepted; confirmed, the neighbour's disagreement refuses every one.
     truth = demo.ground_truth()
     drifted = drifting_odometry(truth, scale_error=0.01, yaw_bias_deg_per_frame=0.05)
-    measure = LoopMeasurer.measure
-
-    def wrong_at_the_proximity_bar(self, target, current, min_inliers=None):
-        measurement, why = measure(self, target, current, min_inliers)
-        if measurement is None or min_inliers != self.config.proximity_min_inliers:
-            return measurement, why
-        forward, left, yaw = measurement.agent_from_target
-        return dataclasses.replace(measurement, agent_from_target=(forward + 3.0, left, yaw)), why
-
-    monkeypatch.setattr(LoopMeasurer, "measure", wrong_at_the_proximity_bar)
+    monkeypatch.setattr(LoopMeasurer, "measure", _moved_3m_forward_at(lambda c: c.proximity_min_inliers))
     metrics = {}
     for confirm in (False, True):
         closure = {"proximity": True, "proximity_confirm": confirm}
@@ -138,15 +145,76 @@ def test_a_wrong_proximity_measurement_is_refused_when_its_neighbour_disagrees(d
     assert notes.get("proximity_disagrees", 0) >= 2, notes
 
 
+def test_proximity_reaches_a_revisit_the_odometry_put_far_off(demo, tmp_path):
+    # An odometry 2 % long that turns 0.1° a frame puts the demo's second lap 2-9 m from the first, beyond
+    # the proximity radius (1 m here), so only the ring that grows with the travel since the last closure
+    # (`proximity_radius_per_m`: 20 m after the first lap) can reach the revisit.
+    truth = demo.ground_truth()
+    drifted = drifting_odometry(truth, scale_error=0.02, yaw_bias_deg_per_frame=0.1)
+    metrics = {}
+    for per_m in (0.0, 0.1):
+        closure = {"proximity_radius_m": 1.0, "proximity_radius_per_m": per_m}
+        config = config_from_dict({**QUIET, "view_words": {"min_inliers": 20000}, "closure": closure})
+        replay = _replay(tmp_path, demo, drifted, f"odometry_{per_m}.txt")
+        metrics[per_m] = Pipeline(demo, config, odometry=replay).run(None).metrics
+    assert metrics[0.0]["loop_closures"] == 0, metrics[0.0]["closure_attempts"]
+    quality = metrics[0.1]["closure_quality"]
+    assert quality["closures"] >= 2 and quality["false_closures"] == 0, quality
+    errors = metrics[0.1]["errors"]
+    assert errors["corrected"]["ate_2d_m"] < 0.5 * errors["vo"]["ate_2d_m"], errors
+
+
+def _view_cells_only(confirmed_bar: int, **closure) -> dict:
+    # Closures from familiar views alone (no proximity), none of which reaches the view cells' own bar of
+    # 1000 inliers: a view cell's measurement is proposed only through a confirming neighbour, at or above
+    # `confirmed_bar` (1000: never).
+    settings = {"proximity": False, "min_inliers": 1000, "view_cell_confirmed_min_inliers": confirmed_bar}
+    return config_from_dict({**QUIET, "closure": {**settings, **closure}})
+
+
+def test_a_familiar_view_below_the_bar_closes_when_a_neighbour_confirms_it(demo, tmp_path):
+    # Another sun or lane leaves a true revisit fewer inliers than the view cells' bar (docs/views.md): the
+    # measurement is still proposed when a neighbour of its vertex, measured from the same frame, confirms it.
+    truth = demo.ground_truth()
+    drifted = drifting_odometry(truth, scale_error=0.01, yaw_bias_deg_per_frame=0.05)
+    metrics = {}
+    for bar in (1000, 15):
+        replay = _replay(tmp_path, demo, drifted, f"odometry_{bar}.txt")
+        metrics[bar] = Pipeline(demo, _view_cells_only(bar), odometry=replay).run(None).metrics
+    assert metrics[1000]["loop_closures"] == 0, metrics[1000]["closure_attempts"]
+    notes = metrics[15]["closure_attempts"]
+    quality = metrics[15]["closure_quality"]
+    assert quality["closures"] >= 3 and quality["false_closures"] == 0, quality
+    assert notes.get("accepted_view_cell_confirmed", 0) == quality["closures"], notes
+    errors = metrics[15]["errors"]
+    assert errors["corrected"]["ate_2d_m"] < 0.5 * errors["vo"]["ate_2d_m"], errors
+
+
+def test_a_wrong_familiar_view_measurement_below_the_bar_is_refused(demo, tmp_path, monkeypatch):
+    # Every first measurement of a familiar view's candidate is moved 3 m forward, as a wrong PnP pose from
+    # few matches would be; the confirming neighbour's measurement (its own measurer) stays true, disagrees,
+    # and no closure is proposed.
+    truth = demo.ground_truth()
+    drifted = drifting_odometry(truth, scale_error=0.01, yaw_bias_deg_per_frame=0.05)
+    bar_of = lambda c: c.view_cell_confirmed_min_inliers
+    monkeypatch.setattr(LoopMeasurer, "measure", _moved_3m_forward_at(bar_of))
+    replay = _replay(tmp_path, demo, drifted)
+    metrics = Pipeline(demo, _view_cells_only(15), odometry=replay).run(None).metrics
+    notes = metrics["closure_attempts"]
+    assert metrics["loop_closures"] == 0, notes
+    assert notes.get("view_cell_disagrees", 0) >= 2, notes
+
+
 def test_proximity_is_not_tried_beyond_its_radius(demo, tmp_path):
-    # Where the odometry puts no gated vertex within `proximity_radius_m`, nothing is measured (the cost
+    # Where the odometry puts no gated vertex within `proximity_radius_m` (and the ring beyond it is off:
+    # `proximity_radius_per_m` 0), nothing is measured (the cost
     # guard: before a loop closes, the gate holds vertices tens of metres away). The only notes left are
     # the view cells' own: a familiar cell of the passage the agent is on has no candidate.
     config = config_from_dict(
         {
             **QUIET,
             "view_words": {"min_inliers": 20000},
-            "closure": {"proximity": True, "proximity_radius_m": 0.05},
+            "closure": {"proximity": True, "proximity_radius_m": 0.05, "proximity_radius_per_m": 0.0},
         }
     )
     metrics = Pipeline(demo, config).run(None).metrics
@@ -188,6 +256,12 @@ def test_a_closure_measures_a_known_offset():
     # The stated uncertainty covers the error (3 σ) and is not absurdly loose.
     sigma = np.asarray(measurement.sigma)
     assert (np.abs(error) < 3 * sigma).all() and sigma[0] < 0.5, (error, sigma)
+    # A measurement less certain than `max_sigma_m` is refused, whatever its inliers.
+    strict = ClosureConfig(max_sigma_m=0.5 * float(np.max(sigma[:2])))
+    assert LoopMeasurer(Calibration, strict).measure(keyframe(key_pose), keyframe(now_pose)) == (
+        None,
+        "uncertain",
+    )
     # A different place of the same world is not a closure.
     elsewhere = planar_poses([55.0], [0.0], [0.0])[0]
     assert (

@@ -53,3 +53,78 @@ def test_refined_stereo_is_no_worse_on_facades(depth_errors) -> None:
     assert len(refined) > 0.95 * len(klt) > 1000
     assert abs(np.median(refined)) < 0.005
     assert np.median(np.abs(refined)) < np.median(np.abs(klt))
+
+
+def _strong_revisit_measurements(descriptor: str) -> list[tuple[float, float] | None]:
+    """(position error m, heading error °) of each second-pass frame's measurement against its first-pass
+    keyframe (None: refused), at the proximity bar of 15 inliers, on a street driven twice at 320×96: the
+    second pass 3 m aside under `strong` change (another sun, hard shadows, changed shop fronts and cars,
+    noise, blur)."""
+    from hippo_nav.closure import LoopMeasurer
+    from hippo_nav.datasets.base import StereoCalibration
+    from hippo_nav.geometry import planar_from_pose, se2_between
+    from hippo_nav.synthetic import revisit_street, stereo_projections
+    from hippo_nav.synthetic.appearance import AppearanceModel
+
+    size, baseline = (320, 96), 0.537
+    p0, p1 = stereo_projections(size, baseline, 718.856 / 1241.0)
+    K = p0[:, :3]
+    street = revisit_street(24, step_m=2.0, lateral_offset_m=3.0)
+    model = AppearanceModel(StreetWorld(street.street_path_m, seed=3), "strong", 3, street.world_from_camera)
+    right_from_left = np.eye(4)
+    right_from_left[0, 3] = baseline
+    Calibration = StereoCalibration(p0, p1, None, None, size)
+    config = ClosureConfig(descriptor=descriptor)
+    extract, measurer = KeyframeExtractor(Calibration, config), LoopMeasurer(Calibration, config)
+    poses = street.world_from_camera
+
+    def keyframe(i: int):
+        look, rng = model.frame(i), np.random.default_rng([3, i])
+        left = model.render(poses[i], K, size, look, noise_rng=rng)
+        return extract(left, model.render(poses[i] @ right_from_left, K, size, look, noise_rng=rng))
+
+    out: list[tuple[float, float] | None] = []
+    for i, place in zip(street.second_pass, street.revisit_of):
+        measurement, _ = measurer.measure(keyframe(int(place)), keyframe(int(i)), 15)
+        if measurement is None:
+            out.append(None)
+            continue
+        truth = se2_between(planar_from_pose(poses[i]), planar_from_pose(poses[int(place)]))
+        error = np.asarray(measurement.agent_from_target) - truth
+        out.append((float(np.hypot(error[0], error[1])), float(np.degrees(abs(error[2])))))
+    return out
+
+
+def test_sift_keyframes_measure_revisits_under_strong_change_that_orb_misses() -> None:
+    # Measured once: SIFT 24 of 24 (errors ≤ 0.3 m, 0.8°), ORB 9 of 24. ORB's corners survive the change of
+    # light, but their descriptors do not: the Hamming distance between a corner and itself on the other pass
+    # was 68-91 of 256 bits on the 06 render at `strong` (38-46 at `same`), near chance.
+    sift = _strong_revisit_measurements("sift")
+    orb = _strong_revisit_measurements("orb")
+    accepted = [m for m in sift if m is not None]
+    assert len(accepted) >= 20 and sum(m is not None for m in orb) <= 12, (sift, orb)
+    assert max(m[0] for m in accepted) < 0.5 and max(m[1] for m in accepted) < 1.5, accepted
+    extract = KeyframeExtractor(
+        KittiOdometry(demo_sequence(), DEMO_SEQUENCE).calibration, ClosureConfig(descriptor="sift")
+    )
+    frame = KittiOdometry(demo_sequence(), DEMO_SEQUENCE)[10]
+    keyframe = extract(frame.left, frame.right)
+    assert keyframe.descriptors.dtype == np.uint8 and keyframe.descriptors.shape == (len(keyframe), 128)
+
+
+def test_a_map_continued_with_another_descriptor_is_refused_clearly() -> None:
+    from hippo_nav._core import HippoNavError
+    from hippo_nav.closure import ViewCellPnpClosure
+
+    dataset = KittiOdometry(demo_sequence(), DEMO_SEQUENCE)
+    orb = ViewCellPnpClosure(dataset.calibration, ClosureConfig())
+    frame = dataset[10]
+    orb.keyframes[0] = orb.extract(frame.left, frame.right)
+    saved = orb.export_keyframes()
+    assert saved["descriptors"].shape[1] == 32
+    sift = ViewCellPnpClosure(dataset.calibration, ClosureConfig(descriptor="sift"))
+    with pytest.raises(HippoNavError, match="continue a map with the descriptor it was made with"):
+        sift.restore_keyframes(saved)
+    restored = ViewCellPnpClosure(dataset.calibration, ClosureConfig())
+    restored.restore_keyframes(saved)
+    np.testing.assert_array_equal(restored.keyframes[0].descriptors, orb.keyframes[0].descriptors)

@@ -16,7 +16,7 @@ to small images (a 96-row render keeps most of its rows).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import cv2
 import numpy as np
@@ -31,7 +31,15 @@ class ClosureConfig(ConfigSection):
 
     model_config = ConfigDict(frozen=True)
 
-    orb_features: int = Field(500, ge=16, le=20000, description="ORB corners detected per left image")
+    orb_features: int = Field(
+        500, ge=16, le=20000, description="features (ORB corners or SIFT blobs) detected per left image"
+    )
+    descriptor: Literal["orb", "sift"] = Field(
+        "orb",
+        description="what a keyframe's features are described by: ORB (32 bytes, Hamming) or SIFT (128 "
+        "bytes, L2). Across a change of light, shadows, noise and blur (the `strong` renders) SIFT matches "
+        "true revisits where ORB does not, at 10-16x the extraction time (docs/views.md)",
+    )
     keyframe_features: int = Field(
         300, ge=16, le=20000, description="strongest stereo features a keyframe keeps"
     )
@@ -50,6 +58,13 @@ class ClosureConfig(ConfigSection):
         description="a keyframe measured farther away is rejected: closures join places within 4 m (the "
         "vertex spacing is ~3 m); far keyframes are seen at grazing angles with few, weak matches, and their "
         "range is measured worst (one measured within 5 m was 5.85 m away in truth, on the 00 render)",
+    )
+    max_sigma_m: float = Field(
+        1.5,
+        gt=0.0,
+        description="a measurement whose position is less certain than this (largest σ of the covariance the "
+        "map gets, m) is refused (noted `uncertain`): on the 00 render at `strong` the accepted measurements "
+        "3 m or more off had 1.5-1.6 m, those within 0.6 m of the truth mostly under 1.3 m",
     )
     sigma_floor_xy_m: float = Field(0.05, gt=0.0, description="least position uncertainty of a loop link")
     sigma_floor_yaw_rad: float = Field(0.005, gt=0.0, description="least heading uncertainty of a loop link")
@@ -78,6 +93,15 @@ class ClosureConfig(ConfigSection):
     closure_spacing_m: float = Field(
         3.0, ge=0.0, description="travel (m) between accepted closures; closer ones add little"
     )
+    view_cell_confirmed_min_inliers: int = Field(
+        15,
+        ge=6,
+        le=20000,
+        description="a familiar view's candidate measured with fewer than `min_inliers` PnP inliers but at least "
+        "this many is proposed only when a path neighbour of its vertex, measured from the same frame, confirms "
+        "it (as a proximity one, `proximity_agreement_*`): another sun or lane leaves a true revisit 15-30 "
+        "inliers, unrelated places at most 9 (docs/views.md). Set it to `min_inliers` to turn it off",
+    )
     proximity: bool = Field(
         True,
         description="a frame whose familiar view gives no closure (or that has none) also measures the nearest "
@@ -97,6 +121,17 @@ class ClosureConfig(ConfigSection):
         description="a proximity measurement is tried only when the odometry puts the nearest gated vertex "
         "this close: `max_distance_m` plus the odometry's likely error (farther ones were 90 % of the failed "
         "tries on the 06 render, and their cost)",
+    )
+    proximity_radius_per_m: float = Field(
+        0.01,
+        ge=0.0,
+        description="beyond `proximity_radius_m`, the proximity search also reaches this share of the travel "
+        "since the last closure (an odometry drifts about 1 % of its path: on the 02 render at `strong` the "
+        "two passes of a street were 27-31 m apart after 2.9-3.4 km), measuring one vertex of that ring a "
+        "frame, in turn; 0: only `proximity_radius_m`",
+    )
+    proximity_max_radius_m: float = Field(
+        50.0, gt=0.0, description="the proximity search reaches at most this far (m)"
     )
     proximity_confirm: bool = Field(
         True,
@@ -211,8 +246,9 @@ class ClosureConfig(ConfigSection):
 
 @dataclass(frozen=True)
 class Keyframe:
-    """Stereo features of one frame: pixels (n, 2) float32, ORB descriptors (n, 32) uint8, 3-D points in
-    the camera frame (n, 3) float32 (metres)."""
+    """Stereo features of one frame: pixels (n, 2) float32, descriptors (n, 32) uint8 (ORB) or (n, 128)
+    uint8 (SIFT, whose values OpenCV rounds to 0-255), 3-D points in the camera frame (n, 3) float32
+    (metres)."""
 
     pixels_px: np.ndarray
     descriptors: np.ndarray
@@ -226,8 +262,13 @@ class Keyframe:
         return int(self.pixels_px.nbytes + self.descriptors.nbytes + self.points_m.nbytes)
 
 
-def _empty_keyframe() -> Keyframe:
-    return Keyframe(np.zeros((0, 2), np.float32), np.zeros((0, 32), np.uint8), np.zeros((0, 3), np.float32))
+DESCRIPTOR_BYTES = {"orb": 32, "sift": 128}
+
+
+def _empty_keyframe(descriptor_bytes: int) -> Keyframe:
+    return Keyframe(
+        np.zeros((0, 2), np.float32), np.zeros((0, descriptor_bytes), np.uint8), np.zeros((0, 3), np.float32)
+    )
 
 
 class KeyframeExtractor:
@@ -259,14 +300,19 @@ class KeyframeExtractor:
         # ORB's descriptor patch and border: 31 px on KITTI-size images, smaller on small renders so that
         # most rows stay usable (a 96-row image would keep only 34 rows at 31 px).
         patch = int(np.clip(height // 6, 15, 31)) | 1
-        self._orb = cv2.ORB.create(
-            nfeatures=self.config.orb_features,
-            scaleFactor=1.2,
-            nlevels=4,
-            edgeThreshold=patch,
-            patchSize=patch,
-            fastThreshold=10,
-        )
+        self.descriptor_bytes = DESCRIPTOR_BYTES[self.config.descriptor]
+        self._detector: Any
+        if self.config.descriptor == "sift":
+            self._detector = cv2.SIFT.create(nfeatures=self.config.orb_features)
+        else:
+            self._detector = cv2.ORB.create(
+                nfeatures=self.config.orb_features,
+                scaleFactor=1.2,
+                nlevels=4,
+                edgeThreshold=patch,
+                patchSize=patch,
+                fastThreshold=10,
+            )
         window = int(np.clip(width // 25, 11, 15)) | 1
         self._klt: dict[str, Any] = {
             "winSize": (window, window),
@@ -281,9 +327,11 @@ class KeyframeExtractor:
         (its self-calibration moves it), None: the one this extractor was made with."""
         cfg = self.config
         offset_px = self.disparity_offset_px if disparity_offset_px is None else float(disparity_offset_px)
-        keypoints, descriptors = self._orb.detectAndCompute(left, None)
+        keypoints, descriptors = self._detector.detectAndCompute(left, None)
         if descriptors is None or len(keypoints) == 0:
-            return _empty_keyframe()
+            return _empty_keyframe(self.descriptor_bytes)
+        # SIFT's float descriptors hold whole numbers 0-255: kept as bytes, exactly, like ORB's.
+        descriptors = np.clip(np.rint(descriptors), 0, 255).astype(np.uint8)
         pixels = np.array([k.pt for k in keypoints], dtype=np.float32)
         response = np.array([k.response for k in keypoints], dtype=np.float32)
         guess = pixels.copy()
@@ -304,7 +352,7 @@ class KeyframeExtractor:
         index = np.flatnonzero(keep)
         index = index[np.argsort(-response[index], kind="stable")[: cfg.keyframe_features]]
         if index.size == 0:
-            return _empty_keyframe()
+            return _empty_keyframe(self.descriptor_bytes)
         if cfg.refine_stereo:
             refined, _ = _refine_matches(
                 np.ascontiguousarray(left),
@@ -317,7 +365,7 @@ class KeyframeExtractor:
             disparity[index] = pixels[index, 0] - refined[:, 0].astype(np.float32) + offset_px
             index = index[disparity[index] > 0.5]
             if index.size == 0:
-                return _empty_keyframe()
+                return _empty_keyframe(self.descriptor_bytes)
         px = pixels[index]
         z = self.fx * self.baseline_m / disparity[index].astype(np.float64)
         points = np.column_stack([(px[:, 0] - self.cx) * z / self.fx, (px[:, 1] - self.cy) * z / self.fy, z])

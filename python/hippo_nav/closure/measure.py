@@ -1,11 +1,12 @@
 """The relative pose of a revisit: a stored keyframe's 3-D points found in the current stereo frame.
 
-Matches: ORB descriptors of the keyframe against the current frame's (brute force, Hamming), kept when
+Matches: ORB descriptors of the keyframe against the current frame's (brute force, Hamming; SIFT's by L2 with
+`closure.descriptor = "sift"`), kept when
 the best is clearly better than the second best (Lowe's ratio). Pose: PnP with RANSAC on (keyframe 3-D
 points, current pixels) gives the inliers and a first `camera_cur_from_camera_key`; a two-view stereo bundle
 adjustment of the inliers (`LoopMeasurer._refine`) gives the pose and its covariance. A closure is rejected
-with fewer than `min_inliers` inliers, an inlier share below `min_inlier_ratio`, or a keyframe farther than
-`max_distance_m` (on the synthetic renders true revisits give 70–340 inliers, unrelated places fewer than 10).
+with fewer than `min_inliers` inliers, an inlier share below `min_inlier_ratio`, a keyframe farther than
+`max_distance_m`, or a position less certain than `max_sigma_m` (on the synthetic renders true revisits give 70–340 inliers, unrelated places fewer than 10).
 
 Why a bundle adjustment rather than PnP refined on the current pixels alone: PnP treats the keyframe's
 stereo points as exact, but a point 30 m away with a 0.3 px disparity error is metres off in depth, and on
@@ -28,7 +29,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from hippo_nav.closure.keyframes import ClosureConfig, Keyframe
+from hippo_nav._core import HippoNavError
+from hippo_nav.closure.keyframes import DESCRIPTOR_BYTES, ClosureConfig, Keyframe
 from hippo_nav.geometry import planar_from_pose, wrap_angle
 
 _GN_ITERATIONS = 10
@@ -77,7 +79,8 @@ class LoopMeasurer:
         self.config = config or ClosureConfig()
         self.K = np.asarray(calibration.K, dtype=np.float64)
         self.baseline_m = float(calibration.baseline_m)
-        self._matcher = cv2.BFMatcher(cv2.NORM_HAMMING)
+        self._sift = self.config.descriptor == "sift"
+        self._matcher = cv2.BFMatcher(cv2.NORM_L2 if self._sift else cv2.NORM_HAMMING)
 
     def measure(
         self, target: Keyframe, current: Keyframe, min_inliers: int | None = None
@@ -87,7 +90,19 @@ class LoopMeasurer:
         bar = cfg.min_inliers if min_inliers is None else int(min_inliers)
         if len(target) < bar or len(current) < bar:
             return None, "too_few_features"
-        pairs = self._matcher.knnMatch(target.descriptors, current.descriptors, k=2)
+        width = DESCRIPTOR_BYTES[cfg.descriptor]
+        if target.descriptors.shape[1] != width or current.descriptors.shape[1] != width:
+            raise HippoNavError(
+                f"keyframe descriptors of {target.descriptors.shape[1]} and {current.descriptors.shape[1]} "
+                f"bytes cannot be matched as closure.descriptor = {cfg.descriptor!r} ({width} bytes): a map "
+                "must be continued with the descriptor it was made with"
+            )
+        if self._sift:
+            pairs = self._matcher.knnMatch(
+                target.descriptors.astype(np.float32), current.descriptors.astype(np.float32), k=2
+            )
+        else:
+            pairs = self._matcher.knnMatch(target.descriptors, current.descriptors, k=2)
         good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < cfg.ratio_test * p[1].distance]
         if len(good) < bar:
             return None, "too_few_matches"
@@ -126,6 +141,11 @@ class LoopMeasurer:
         information = self._planar_information(cur_from_key, cov6)
         if information is None:
             return None, "degenerate"
+        # A link this uncertain adds little and is where wrong poses hide: on the 00 render at `strong` the
+        # two accepted measurements off by 3 m or more had σ of 1.5-1.6 m (docs/results.md).
+        sigma_m = np.sqrt(max(float(np.linalg.eigvalsh(np.linalg.inv(information)[:2, :2]).max()), 0.0))
+        if not sigma_m <= cfg.max_sigma_m:
+            return None, "uncertain"
         agent_from_target = tuple(float(v) for v in planar_from_pose(cur_from_key))
         return (
             LoopMeasurement(agent_from_target, information, cur_from_key, n_inliers, len(good), rmse),  # type: ignore[arg-type]

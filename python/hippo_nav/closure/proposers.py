@@ -19,9 +19,17 @@ stereo frame measures the nearest `candidates_per_frame` against their stored ke
 `LoopMeasurer`) and the first verified one is proposed, at most one accepted closure per
 `closure_spacing_m` of travel. Every new vertex keeps its frame's keyframe.
 
+A familiar view's candidate measured with fewer inliers than `min_inliers`, but at least
+`view_cell_confirmed_min_inliers`, is proposed only when a path neighbour of its vertex confirms it, as a
+proximity measurement is (below); it is noted `accepted_view_cell_confirmed`, a refused one
+`view_cell_unconfirmed` or `view_cell_disagrees`.
+
 Proximity (`closure.proximity`, on by default): a frame whose familiar view gives no closure, or that has no
 familiar view, also measures the vertex nearest to where the odometry puts the agent among those the loop
 gate admits, when it is within `proximity_radius_m`, at the lower bar of `proximity_min_inliers` PnP inliers.
+An odometry drifts: after kilometres without a closure a revisit lies tens of metres from where it puts the
+agent (`proximity_radius_per_m` of the travel since the last closure, at most `proximity_max_radius_m`), so
+each frame also measures one gated vertex of the ring out to that reach, the next one in turn each frame.
 The view cells recognise a place by its look; a revisit under another sun, in another lane, is not recognised
 (the `strong` renders), but its stereo geometry still measures it. The bar may be lower because the gate has
 already put the vertex where the odometry says the agent is: unrelated places gave at most 9 inliers (1 352
@@ -52,7 +60,7 @@ import numpy as np
 
 from hippo_nav._core import HippoNavError
 from hippo_nav.closure.birdseye import BirdsEyeSearch
-from hippo_nav.closure.keyframes import ClosureConfig, Keyframe, KeyframeExtractor
+from hippo_nav.closure.keyframes import DESCRIPTOR_BYTES, ClosureConfig, Keyframe, KeyframeExtractor
 from hippo_nav.closure.measure import LoopMeasurement, LoopMeasurer
 from hippo_nav.datasets.base import StereoCalibration, StereoFrame
 from hippo_nav.geometry import se2_between, se2_compose
@@ -61,6 +69,9 @@ from hippo_nav.memory import split_ragged, stack_ragged
 from hippo_nav.workers import Worker
 
 log = logging.getLogger("hippo_nav.pipeline")
+
+# The proximity ring measures only vertices whose heading the odometry puts within this of the agent's.
+_RING_MAX_HEADING_RAD = np.radians(30.0)
 
 __all__ = ["ClosureAttempt", "ClosureContext", "ClosureProposer", "ProposedClosure", "ViewCellPnpClosure"]
 
@@ -87,8 +98,9 @@ class ProposedClosure:
     target_vertex: int
     agent_from_target: tuple[float, float, float]  # planar (forward m, left m, yaw rad)
     information: np.ndarray  # (3, 3) inverse covariance of agent_from_target
-    # What proposed it: "view_cell" (a familiar view) or "proximity" (the vertex nearest to where the
-    # odometry puts the agent, inside the loop gate); an accepted one is noted "accepted" or "accepted_<via>".
+    # What proposed it: "view_cell" (a familiar view), "view_cell_confirmed" (a familiar view below the
+    # view cells' bar, confirmed by a neighbour), "proximity" (a vertex near where the odometry puts the
+    # agent, inside the loop gate) or "birdseye"; an accepted one is noted "accepted" or "accepted_<via>".
     via: str = "view_cell"
 
     def map_input(self) -> tuple[int, tuple[float, float, float], np.ndarray]:
@@ -163,6 +175,7 @@ class ViewCellPnpClosure:
         self._proposed = False  # whether the current frame proposed a closure
         self._offset_px: float | None = None  # the current frame's stereo correction (ClosureContext)
         self._closure_odometer_m = -np.inf
+        self._ring_turn = 0  # which vertex of the proximity ring the next frame measures
         # Relocalisation hypotheses: (odometer m, the session's pose in the loaded map (x, y, yaw)).
         self._hypotheses: list[tuple[float, np.ndarray]] = []
 
@@ -193,11 +206,10 @@ class ViewCellPnpClosure:
             gated = experience_map.loop_candidates(nearby, context.planar_step)
             candidates = [(c[0], None, "view_cell") for c in gated[: cfg.candidates_per_frame]]
         if cfg.proximity:
-            nearest = self._nearest_gated(context)
-            if nearest is not None:
+            for vertex in self._proximity_candidates(context):
                 # Already a view cell's candidate: measured once, at the proximity bar.
-                candidates = [c for c in candidates if c[0] != nearest]
-                candidates.append((nearest, cfg.proximity_min_inliers, "proximity"))
+                candidates = [c for c in candidates if c[0] != vertex]
+                candidates.append((vertex, cfg.proximity_min_inliers, "proximity"))
         if not candidates:
             attempt = NO_ATTEMPT if anchor is None else ClosureAttempt(None, "no_candidate")
             return self._or_birdseye(context, attempt)
@@ -212,9 +224,17 @@ class ViewCellPnpClosure:
             keyframe = self._keyframe(vertex)
             if keyframe is None:
                 continue
+            if via == "view_cell":
+                bar = min(cfg.view_cell_confirmed_min_inliers, cfg.min_inliers)
             measurement, why = self.measurer.measure(keyframe, current, bar)
+            if measurement is not None and via == "view_cell" and measurement.inliers < cfg.min_inliers:
+                # Below the view cells' own bar: proposed only if a path neighbour confirms it.
+                via = "view_cell_confirmed"
+                confirmed, why = self._confirmed(experience_map, vertex, measurement, current, "view_cell")
+                if not confirmed:
+                    continue
             if measurement is not None and via == "proximity" and cfg.proximity_confirm:
-                confirmed, why = self._confirmed(experience_map, vertex, measurement, current)
+                confirmed, why = self._confirmed(experience_map, vertex, measurement, current, "proximity")
                 if not confirmed:
                     continue
             if measurement is not None:
@@ -242,20 +262,46 @@ class ViewCellPnpClosure:
         self._proposed = True
         return ClosureAttempt(ProposedClosure(vertex, agent_from_target, information, "birdseye"), "measured")
 
-    def _nearest_gated(self, context: ClosureContext) -> int | None:
-        """The vertex nearest to where the odometry puts the agent, among those the map's loop gate admits
-        (far enough back along the path, inside the gate), when it is within `proximity_radius_m`; else
-        None."""
+    def _proximity_candidates(self, context: ClosureContext) -> list[int]:
+        """The vertices a proximity measurement tries, among those the map's loop gate admits (far enough
+        back along the path, inside the gate): the one nearest to where the odometry puts the agent, when it
+        is within `proximity_radius_m`, then one vertex of the ring beyond it, out to the odometry's likely
+        drift since the last closure (`proximity_radius_per_m`, at most `proximity_max_radius_m`), taken in
+        turn from frame to frame, among those passed in about the agent's direction (within 30°) (module
+        doc)."""
+        cfg = self.config
         experience_map, step = context.experience_map, context.planar_step
-        near = experience_map.vertices_near(self.config.proximity_radius_m, step)
+        since_m = experience_map.odometer_m - max(self._closure_odometer_m, 0.0)
+        reach_m = min(
+            cfg.proximity_radius_m + cfg.proximity_radius_per_m * since_m, cfg.proximity_max_radius_m
+        )
+        near = experience_map.vertices_near(max(reach_m, cfg.proximity_radius_m), step)
         gated = experience_map.loop_candidates(near, step) if near else []
-        return int(gated[0][0]) if gated else None
+        chosen = [int(gated[0][0])] if gated and gated[0][2] <= cfg.proximity_radius_m else []
+        # Only vertices passed in about the agent's direction: a forward camera measures nothing else.
+        ring = [
+            int(c[0])
+            for c in gated
+            if c[2] > cfg.proximity_radius_m and abs(c[1][2]) <= _RING_MAX_HEADING_RAD
+        ]
+        if ring:
+            # The drift's direction is unknown: each frame measures the next vertex of the ring, so that a
+            # revisit tens of metres from where the odometry puts it is met within a few frames of driving.
+            chosen.append(ring[self._ring_turn % len(ring)])
+            self._ring_turn += 1
+        return chosen
 
     def _confirmed(
-        self, experience_map: ExperienceMap, vertex: int, measurement: LoopMeasurement, current: Keyframe
+        self,
+        experience_map: ExperienceMap,
+        vertex: int,
+        measurement: LoopMeasurement,
+        current: Keyframe,
+        via: str,
     ) -> tuple[bool, str]:
         """(whether a neighbour of `vertex` along the path, measured from the same frame, lies where
-        `measurement` and the map put it, why not). The neighbour nearer the agent is tried first.
+        `measurement` and the map put it, why not: `<via>_no_neighbour`, `<via>_unconfirmed` (no neighbour
+        measured) or `<via>_disagrees`). The neighbour nearer the agent is tried first.
 
         A wrong PnP pose from a few matches can be metres off and still inside its own covariance's gate (on
         the 00 render at `strong`: 3.5 m, χ² 42 against the truth); a second keyframe, measured
@@ -269,28 +315,29 @@ class ViewCellPnpClosure:
         neighbours = [n for n in (vertex - 1, vertex + 1) if 0 <= n < len(experience_map)]
         poses = {n: np.array(experience_map.vertex_pose(n)) for n in neighbours}
         neighbours.sort(key=lambda n: float(np.hypot(*(poses[n][:2] - world_from_agent[:2]))))
-        why = "proximity_no_neighbour"
+        why = f"{via}_no_neighbour"
         for neighbour in neighbours:
             keyframe = self._keyframe(neighbour)
             if keyframe is None:
                 continue
             second, _ = self.confirmer.measure(keyframe, current)
             if second is None:
-                why = why if why == "proximity_disagrees" else "proximity_unconfirmed"
+                why = why if why == f"{via}_disagrees" else f"{via}_unconfirmed"
                 continue
             predicted = se2_compose(agent_from_target, se2_between(world_from_target, poses[neighbour]))
             off = se2_between(predicted, np.array(second.agent_from_target))
             off_m, off_rad = float(np.hypot(off[0], off[1])), abs(float(off[2]))
             log.debug(
-                "vertex %d: proximity measurement checked against neighbour %d: %.2f m, %.3f rad apart",
+                "vertex %d: %s measurement checked against neighbour %d: %.2f m, %.3f rad apart",
                 vertex,
+                via,
                 neighbour,
                 off_m,
                 off_rad,
             )
             if off_m <= cfg.proximity_agreement_m and off_rad <= cfg.proximity_agreement_rad:
                 return True, "ok"
-            why = "proximity_disagrees"
+            why = f"{via}_disagrees"
         return False, why
 
     def _relocalise(self, context: ClosureContext, first_session_vertex: int) -> ClosureAttempt:
@@ -363,9 +410,12 @@ class ViewCellPnpClosure:
             "vertex": np.array(vertices, np.int64),
             "count": np.array([len(k) for k in frames], np.int64),
             "pixels_px": stack_ragged([k.pixels_px for k in frames], 2, np.float32),
-            "descriptors": stack_ragged([k.descriptors for k in frames], 32, np.uint8),
+            "descriptors": stack_ragged(
+                [k.descriptors for k in frames], DESCRIPTOR_BYTES[self.config.descriptor], np.uint8
+            ),
             "points_m": stack_ragged([k.points_m for k in frames], 3, np.float32),
             "closure_odometer_m": np.array(self._closure_odometer_m),
+            "ring_turn": np.array(self._ring_turn, np.int64),
             # Relocalisation hypotheses not yet confirmed (odometer m, x, y, yaw).
             "hypotheses": np.array([[o, *h] for o, h in self._hypotheses], np.float64).reshape(-1, 4),
         }
@@ -373,6 +423,13 @@ class ViewCellPnpClosure:
     def restore_keyframes(self, saved: dict[str, np.ndarray]) -> None:
         """The keyframes of `export_keyframes`, kept as this proposer's (replacing any)."""
         parts = split_ragged(saved["count"], saved["pixels_px"], saved["descriptors"], saved["points_m"])
+        width = int(saved["descriptors"].shape[1]) if saved["descriptors"].ndim == 2 else -1
+        if width != DESCRIPTOR_BYTES[self.config.descriptor]:
+            raise HippoNavError(
+                f"the saved keyframes hold {width}-byte descriptors, closure.descriptor = "
+                f"{self.config.descriptor!r} needs {DESCRIPTOR_BYTES[self.config.descriptor]}: continue a map with the "
+                "descriptor it was made with"
+            )
         if len(parts) != len(saved["vertex"]):
             raise HippoNavError("saved keyframes are inconsistent: one count per vertex is needed")
         self.keyframes = {
@@ -386,6 +443,8 @@ class ViewCellPnpClosure:
         self._pending = {}
         self.birdseye = BirdsEyeSearch(self.config)  # its caches derive from the keyframes
         self._closure_odometer_m = float(saved["closure_odometer_m"])
+        # A memory saved before the proximity ring has no turn: it starts again at the first vertex.
+        self._ring_turn = int(saved["ring_turn"]) if "ring_turn" in saved else 0
         self._hypotheses = [(float(h[0]), np.array(h[1:], np.float64)) for h in saved["hypotheses"]]
 
     def after_map(
