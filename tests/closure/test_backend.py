@@ -222,9 +222,11 @@ def test_proximity_is_not_tried_beyond_its_radius(demo, tmp_path):
     assert set(metrics["closure_attempts"]) <= {"no_candidate"}, metrics["closure_attempts"]
 
 
-def test_a_closure_measures_a_known_offset():
-    # Two stereo frames of one street: the second camera 1.2 m to the left, 2.5 m back and turned 6°.
-    size, baseline = (320, 96), 0.537
+@pytest.mark.parametrize("descriptor, size", [("orb", (320, 96)), ("sift", (320, 96)), ("sift", (1280, 384))])
+def test_a_closure_measures_a_known_offset(descriptor, size):
+    # Two stereo frames of one street: the second camera 1.2 m to the left, 2.5 m back and turned 6°. At
+    # 1280 px SIFT describes the image shrunk to 640 px: its pixels must come back to full size exactly.
+    baseline = 0.537
     p0, _ = stereo_projections(size, baseline, 718.856 / 1241.0)
     K = p0[:, :3]
     path = planar_poses(np.linspace(-20, 80, 50), np.zeros(50), np.zeros(50))
@@ -241,15 +243,15 @@ def test_a_closure_measures_a_known_offset():
         image_size_px = size
 
     Calibration.K = K
-    extract = KeyframeExtractor(Calibration, ClosureConfig())
+    config = ClosureConfig(descriptor=descriptor)
+    extract = KeyframeExtractor(Calibration, config)
 
     def keyframe(pose):
         return extract(world.render(pose, K, size), world.render(pose @ right, K, size))
 
-    measurement, why = LoopMeasurer(Calibration, ClosureConfig()).measure(
-        keyframe(key_pose), keyframe(now_pose)
-    )
+    measurement, why = LoopMeasurer(Calibration, config).measure(keyframe(key_pose), keyframe(now_pose))
     assert why == "ok" and measurement is not None
+    assert keyframe(key_pose).pixels_px[:, 0].max() > 0.75 * size[0]  # full-size pixels
     truth = se2_between(planar_from_pose(now_pose), planar_from_pose(key_pose))
     error = np.asarray(measurement.agent_from_target) - truth
     assert np.hypot(error[0], error[1]) < 0.15 and abs(error[2]) < np.radians(0.5), (error, truth)
@@ -257,16 +259,14 @@ def test_a_closure_measures_a_known_offset():
     sigma = np.asarray(measurement.sigma)
     assert (np.abs(error) < 3 * sigma).all() and sigma[0] < 0.5, (error, sigma)
     # A measurement less certain than `max_sigma_m` is refused, whatever its inliers.
-    strict = ClosureConfig(max_sigma_m=0.5 * float(np.max(sigma[:2])))
+    strict = ClosureConfig(descriptor=descriptor, max_sigma_m=0.5 * float(np.max(sigma[:2])))
     assert LoopMeasurer(Calibration, strict).measure(keyframe(key_pose), keyframe(now_pose)) == (
         None,
         "uncertain",
     )
     # A different place of the same world is not a closure.
     elsewhere = planar_poses([55.0], [0.0], [0.0])[0]
-    assert (
-        LoopMeasurer(Calibration, ClosureConfig()).measure(keyframe(key_pose), keyframe(elsewhere))[0] is None
-    )
+    assert LoopMeasurer(Calibration, config).measure(keyframe(key_pose), keyframe(elsewhere))[0] is None
 
 
 def test_a_look_alike_place_elsewhere_is_refused(street, tmp_path):

@@ -38,7 +38,7 @@ class ClosureConfig(ConfigSection):
         "orb",
         description="what a keyframe's features are described by: ORB (32 bytes, Hamming) or SIFT (128 "
         "bytes, L2). Across a change of light, shadows, noise and blur (the `strong` renders) SIFT matches "
-        "true revisits where ORB does not, at 10-16x the extraction time (docs/views.md)",
+        "true revisits where ORB does not, at 2-3x the extraction time (docs/views.md)",
     )
     keyframe_features: int = Field(
         300, ge=16, le=20000, description="strongest stereo features a keyframe keeps"
@@ -263,6 +263,7 @@ class Keyframe:
 
 
 DESCRIPTOR_BYTES = {"orb": 32, "sift": 128}
+_SIFT_MAX_WIDTH_PX = 640.0  # SIFT runs on the left image shrunk to at most this width
 
 
 def _empty_keyframe(descriptor_bytes: int) -> Keyframe:
@@ -302,6 +303,10 @@ class KeyframeExtractor:
         patch = int(np.clip(height // 6, 15, 31)) | 1
         self.descriptor_bytes = DESCRIPTOR_BYTES[self.config.descriptor]
         self._detector: Any
+        # SIFT describes the left image shrunk to at most `_SIFT_MAX_WIDTH_PX` wide (OpenCV's SIFT doubles
+        # its input first, so a 1241-px KITTI image cost 6.3x ORB's extraction; at half size 2.6x, and the
+        # measurements on real 06 and 01 were as good or better, docs/views.md).
+        self._sift_scale = min(1.0, _SIFT_MAX_WIDTH_PX / float(width))
         if self.config.descriptor == "sift":
             self._detector = cv2.SIFT.create(nfeatures=self.config.orb_features)
         else:
@@ -327,12 +332,19 @@ class KeyframeExtractor:
         (its self-calibration moves it), None: the one this extractor was made with."""
         cfg = self.config
         offset_px = self.disparity_offset_px if disparity_offset_px is None else float(disparity_offset_px)
-        keypoints, descriptors = self._detector.detectAndCompute(left, None)
+        scale = self._sift_scale if cfg.descriptor == "sift" else 1.0
+        image = left
+        if scale < 1.0:
+            size = (round(left.shape[1] * scale), round(left.shape[0] * scale))
+            image = cv2.resize(left, size, interpolation=cv2.INTER_AREA)
+        keypoints, descriptors = self._detector.detectAndCompute(image, None)
         if descriptors is None or len(keypoints) == 0:
             return _empty_keyframe(self.descriptor_bytes)
         # SIFT's float descriptors hold whole numbers 0-255: kept as bytes, exactly, like ORB's.
         descriptors = np.clip(np.rint(descriptors), 0, 255).astype(np.uint8)
         pixels = np.array([k.pt for k in keypoints], dtype=np.float32)
+        if scale < 1.0:  # back to full-size pixels (pixel centres at integers in both images)
+            pixels = ((pixels + 0.5) / scale - 0.5).astype(np.float32)
         response = np.array([k.response for k in keypoints], dtype=np.float32)
         guess = pixels.copy()
         guess[:, 0] -= self.fx * self.baseline_m / cfg.stereo_guess_depth_m - offset_px
