@@ -304,7 +304,7 @@ class KeyframeExtractor:
         self.descriptor_bytes = DESCRIPTOR_BYTES[self.config.descriptor]
         self._detector: Any
         # SIFT describes the left image shrunk to at most `_SIFT_MAX_WIDTH_PX` wide (OpenCV's SIFT doubles
-        # its input first, so a 1241-px KITTI image cost 6.3x ORB's extraction; at half size 2.6x, and the
+        # its input first, so a 1226-px KITTI image cost 6.3x ORB's extraction; at 640 px 2.8x, and the
         # measurements on real 06 and 01 were as good or better, docs/views.md).
         self._sift_scale = min(1.0, _SIFT_MAX_WIDTH_PX / float(width))
         if self.config.descriptor == "sift":

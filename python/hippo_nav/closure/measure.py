@@ -1,12 +1,13 @@
 """The relative pose of a revisit: a stored keyframe's 3-D points found in the current stereo frame.
 
-Matches: ORB descriptors of the keyframe against the current frame's (brute force, Hamming; SIFT's by L2 with
-`closure.descriptor = "sift"`), kept when
-the best is clearly better than the second best (Lowe's ratio). Pose: PnP with RANSAC on (keyframe 3-D
+Matches: ORB descriptors of the keyframe against the current frame's (brute force, Hamming; SIFT's by L2
+with `closure.descriptor = "sift"`), kept when the best is clearly better than the second best (Lowe's
+ratio). Pose: PnP with RANSAC on (keyframe 3-D
 points, current pixels) gives the inliers and a first `camera_cur_from_camera_key`; a two-view stereo bundle
 adjustment of the inliers (`LoopMeasurer._refine`) gives the pose and its covariance. A closure is rejected
 with fewer than `min_inliers` inliers, an inlier share below `min_inlier_ratio`, a keyframe farther than
-`max_distance_m`, or a position less certain than `max_sigma_m` (on the synthetic renders true revisits give 70–340 inliers, unrelated places fewer than 10).
+`max_distance_m`, or a position less certain than `max_sigma_m` (on the synthetic renders true revisits give
+70–340 inliers, unrelated places fewer than 10).
 
 Why a bundle adjustment rather than PnP refined on the current pixels alone: PnP treats the keyframe's
 stereo points as exact, but a point 30 m away with a 0.3 px disparity error is metres off in depth, and on
