@@ -200,7 +200,7 @@ def _quantiles(values, low: bool = False) -> dict:
 
 
 # ------------------------------------------------------------------------------------- closure measure
-def closure_section(data: Path, descriptor: str = "orb") -> dict:
+def closure_section(data: Path, descriptor: str = "sift") -> dict:
     from hippo_nav.closure import ClosureConfig, KeyframeExtractor, LoopMeasurer
     from hippo_nav.datasets import KittiOdometry
     from hippo_nav.geometry import planar_from_pose, wrap_angle
@@ -355,8 +355,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--descriptor",
         choices=["orb", "sift"],
-        default="orb",
-        help="the closure keyframes' (closure.descriptor)",
+        default="sift",
+        help="the closure keyframes' (closure.descriptor; the pipeline's default is sift)",
     )
     args = parser.parse_args(argv)
     args.out.mkdir(parents=True, exist_ok=True)

@@ -5,7 +5,7 @@ and the experience map, images read from disk included. The measure that matters
 against the camera's 10 Hz. A baseline runs in the same rounds, interleaved with the measured pipeline so
 that both see the same machine load: the pipeline as it was before the speed work, reproduced through its
 config (every stage one after another on one thread, the VO detecting and stereo-matching every corner
-anew, `test_vo_bench.PREVIOUS_VO`). `extra_info` holds both frame rates, their ratio (`speedup` > 1: the
+anew, `test_vo_bench.PREVIOUS_VO`, ORB keyframes). `extra_info` holds both frame rates, their ratio (`speedup` > 1: the
 current pipeline is faster), the time per stage and each stage's share of a frame, and the 10 Hz camera
 period as a ratio (`camera_period_ratio` < 1 means faster than real time). The view-cell benchmark takes the
 other view descriptor as its baseline instead. Real KITTI frames (1241×376,
@@ -24,7 +24,12 @@ CAMERA_PERIOD_S = 0.1
 OUTPUT = {"figures": False, "save_map": False}
 
 
-PREVIOUS = {"overlap_front_end": False, "vo": PREVIOUS_VO.model_dump()}
+# ORB keyframes, as every keyframe was before SIFT became the default: the baseline stays the same pipeline.
+PREVIOUS = {
+    "overlap_front_end": False,
+    "vo": PREVIOUS_VO.model_dump(),
+    "closure": {"descriptor": "orb"},
+}
 
 
 def _bench(benchmark, dataset, current_sections=None, previous_sections=PREVIOUS) -> None:
@@ -111,3 +116,13 @@ def test_pipeline_real_kitti_06_refined_matches(benchmark, shared_data):
     data = KittiOdometry(shared_data / "kitti_odometry", "06")
     data.name = "KITTI 06 frames 0-50, refined matches (baseline: KLT's)"
     _bench(benchmark, data, {}, {"vo": {"refine_matches": False}})
+
+
+@pytest.mark.data
+def test_pipeline_real_kitti_06_sift_keyframes(benchmark, shared_data):
+    """The current pipeline (SIFT keyframes, `closure.descriptor`) against the same pipeline with ORB
+    keyframes, in the same rounds: what describing every new vertex's keyframe by SIFT costs the system."""
+    benchmark.group = "pipeline by keyframe descriptor"
+    data = KittiOdometry(shared_data / "kitti_odometry", "06")
+    data.name = "KITTI 06 frames 0-50, SIFT keyframes (baseline: ORB)"
+    _bench(benchmark, data, {"closure": {"descriptor": "sift"}}, {"closure": {"descriptor": "orb"}})

@@ -53,7 +53,7 @@ def out_and_back() -> KittiOdometry:
 @pytest.fixture(scope="module")
 def structure(out_and_back):
     """Every frame's structure points and its ground-truth planar pose and path length."""
-    cfg = ClosureConfig()
+    cfg = ClosureConfig(descriptor="orb")
     extract = KeyframeExtractor(out_and_back.calibration, cfg)
     points = [structure_points(extract(f.left, f.right).points_m, cfg) for f in out_and_back]
     planar = planar_from_pose(out_and_back.ground_truth())
@@ -76,7 +76,7 @@ def _frame_near(planar: np.ndarray, xy: tuple[float, float], heading_rad: float)
 
 def test_a_street_driven_back_the_other_way_registers_with_the_right_relative_pose(structure):
     _, planar, _ = structure
-    cfg = ClosureConfig()
+    cfg = ClosureConfig(descriptor="orb")
     query_at = _frame_near(planar, (30.0, 3.0), np.pi)  # on the way back west, 15 m past the corner
     target_at = _frame_near(planar, (30.0, 0.0), 0.0)  # the same place on the way out, heading east
     query = _submap(structure, query_at, -cfg.birdseye_submap_m, 0.0)
@@ -102,7 +102,7 @@ def test_a_street_driven_back_the_other_way_registers_with_the_right_relative_po
 
 def test_a_look_alike_street_elsewhere_is_refused(structure):
     _, planar, _ = structure
-    cfg = ClosureConfig()
+    cfg = ClosureConfig(descriptor="orb")
     query_at = _frame_near(planar, (30.0, 3.0), np.pi)
     query = _submap(structure, query_at, -cfg.birdseye_submap_m, 0.0)
     # A straight street of walls alone (two noisy lines 14 m apart, as stereo sees them) slides along itself:
@@ -130,7 +130,7 @@ def test_a_look_alike_street_elsewhere_is_refused(structure):
 
 
 def test_a_submap_with_too_few_points_never_proposes(structure):
-    cfg = ClosureConfig()
+    cfg = ClosureConfig(descriptor="orb")
     _, planar, _ = structure
     query_at = _frame_near(planar, (30.0, 3.0), np.pi)
     query = _submap(structure, query_at, -cfg.birdseye_submap_m, 0.0)
@@ -150,7 +150,7 @@ def test_the_pipeline_closes_the_reverse_revisit(out_and_back, tmp_path):
     base = {"output": {"figures": False, "save_map": False}}
     results = {}
     for on in (False, True):
-        config = config_from_dict({**base, "closure": {"birdseye": on}})
+        config = config_from_dict({**base, "closure": {"birdseye": on, "descriptor": "orb"}})
         results[on] = Pipeline(out_and_back, config, odometry=ReplayOdometry(path, out_and_back)).run(None)
     metrics = {on: r.metrics for on, r in results.items()}
     notes = metrics[True]["closure_attempts"]
@@ -164,6 +164,18 @@ def test_the_pipeline_closes_the_reverse_revisit(out_and_back, tmp_path):
     assert metrics[False]["errors"]["corrected"]["ate_2d_m"] > 0.9 * odometry_ate
 
 
+def test_birdseye_closures_with_sift_keyframes_are_refused_naming_the_fix() -> None:
+    # Bird's-eye submaps were measured on ORB corners' stereo points only: with SIFT keyframes (the default)
+    # the out-and-back street above registered 29 m off and the pipeline accepted false closures.
+    from pydantic import ValidationError
+
+    with pytest.raises(
+        ValidationError, match='closure.birdseye needs ORB keyframes: set closure.descriptor = "orb"'
+    ):
+        ClosureConfig(birdseye=True)
+    assert ClosureConfig(birdseye=True, descriptor="orb").birdseye
+
+
 def test_a_failing_birdseye_attempt_costs_its_closure_not_the_run(out_and_back, monkeypatch, caplog):
     from hippo_nav.closure.birdseye import BirdsEyeSearch
 
@@ -172,7 +184,7 @@ def test_a_failing_birdseye_attempt_costs_its_closure_not_the_run(out_and_back, 
 
     monkeypatch.setattr(BirdsEyeSearch, "propose", broken)
     config = config_from_dict(
-        {"output": {"figures": False, "save_map": False}, "closure": {"birdseye": True}}
+        {"output": {"figures": False, "save_map": False}, "closure": {"birdseye": True, "descriptor": "orb"}}
     )
     with caplog.at_level("WARNING", logger="hippo_nav.pipeline"):
         result = Pipeline(out_and_back, config).run(None)

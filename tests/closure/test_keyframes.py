@@ -15,14 +15,17 @@ ROAD, FACADE = 1, 2  # `StreetWorld.cast` hit kinds
 @pytest.fixture(scope="module")
 def depth_errors() -> dict[bool, dict[int, np.ndarray]]:
     """Relative depth errors (Z / true Z − 1) of keyframe points on every 3rd frame of the demo loop, by hit
-    kind, with and without the refinement; the truth ray cast into the street the demo was rendered in."""
+    kind, with and without the refinement; the truth ray cast into the street the demo was rendered in. ORB
+    corners, as the bias was measured on (SIFT's blob centres sit on the road less often: +2.8 % with KLT)."""
     dataset = KittiOdometry(demo_sequence(), DEMO_SEQUENCE)
     gt = dataset.ground_truth()
     K = np.asarray(dataset.calibration.K, dtype=np.float64)
     world = StreetWorld(gt[:, :3, 3], street_half_width_m=7.0, camera_height_m=1.65, seed=0)
     out = {}
     for refine in (False, True):
-        extract = KeyframeExtractor(dataset.calibration, ClosureConfig(refine_stereo=refine))
+        extract = KeyframeExtractor(
+            dataset.calibration, ClosureConfig(descriptor="orb", refine_stereo=refine)
+        )
         errors: dict[int, list[float]] = {ROAD: [], FACADE: []}
         for i in range(2, len(dataset), 3):
             frame = dataset[i]
@@ -95,11 +98,12 @@ def _strong_revisit_measurements(descriptor: str) -> list[tuple[float, float] | 
     return out
 
 
-def test_sift_keyframes_measure_revisits_under_strong_change_that_orb_misses() -> None:
+def test_the_default_sift_keyframes_measure_revisits_under_strong_change_that_orb_misses() -> None:
     # Measured once: SIFT 24 of 24 (errors ≤ 0.3 m, 0.8°), ORB 9 of 24. ORB's corners survive the change of
     # light, but their descriptors do not: the Hamming distance between a corner and itself on the other pass
-    # was 68-91 of 256 bits on the 06 render at `strong` (38-46 at `same`), near chance.
-    sift = _strong_revisit_measurements("sift")
+    # was 68-91 of 256 bits on the 06 render at `strong` (38-46 at `same`), near chance. The default is what
+    # is measured first: with ORB as the default this fails.
+    sift = _strong_revisit_measurements(ClosureConfig().descriptor)
     orb = _strong_revisit_measurements("orb")
     accepted = [m for m in sift if m is not None]
     assert len(accepted) >= 20 and sum(m is not None for m in orb) <= 12, (sift, orb)
@@ -117,7 +121,7 @@ def test_a_map_continued_with_another_descriptor_is_refused_clearly() -> None:
     from hippo_nav.closure import ViewCellPnpClosure
 
     dataset = KittiOdometry(demo_sequence(), DEMO_SEQUENCE)
-    orb = ViewCellPnpClosure(dataset.calibration, ClosureConfig())
+    orb = ViewCellPnpClosure(dataset.calibration, ClosureConfig(descriptor="orb"))
     frame = dataset[10]
     orb.keyframes[0] = orb.extract(frame.left, frame.right)
     saved = orb.export_keyframes()
@@ -125,6 +129,6 @@ def test_a_map_continued_with_another_descriptor_is_refused_clearly() -> None:
     sift = ViewCellPnpClosure(dataset.calibration, ClosureConfig(descriptor="sift"))
     with pytest.raises(HippoNavError, match="continue a map with the descriptor it was made with"):
         sift.restore_keyframes(saved)
-    restored = ViewCellPnpClosure(dataset.calibration, ClosureConfig())
+    restored = ViewCellPnpClosure(dataset.calibration, ClosureConfig(descriptor="orb"))
     restored.restore_keyframes(saved)
     np.testing.assert_array_equal(restored.keyframes[0].descriptors, orb.keyframes[0].descriptors)

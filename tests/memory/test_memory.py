@@ -227,6 +227,7 @@ def test_a_damaged_memory_is_one_clear_error_and_overwrites_nothing(first_lap, t
         ({"engine": {"torus_period_m": 120.0}}, "engine.torus_period_m"),
         ({"parts": {"view_cells": "template"}}, "parts.view_cells"),
         ({"lesions": {"dorsal": True}}, "lesions.dorsal"),
+        ({"closure": {"descriptor": "orb"}}, "closure.descriptor"),
     ],
 )
 def test_a_memory_made_with_other_settings_is_refused_naming_the_setting(
@@ -235,6 +236,22 @@ def test_a_memory_made_with_other_settings_is_refused_naming_the_setting(
     config = config_from_dict({**QUIET, **override})
     with pytest.raises(SavedMemoryError, match=rf"made with {names.replace('.', '[.]')} ="):
         run(tmp_path / "x", config=config, progress=False, stop=5, memory_from=first_lap)
+    assert not (tmp_path / "x").exists()
+
+
+def test_a_memory_from_before_the_keyframe_descriptor_was_recorded_is_taken_as_orb(first_lap, tmp_path):
+    """Memories saved before `closure.descriptor` was recorded hold ORB keyframes (the default then): a run
+    with SIFT keyframes (the default now) refuses one, naming the setting to change."""
+    import shutil
+
+    old = tmp_path / "old"
+    shutil.copytree(first_lap, old)
+    manifest = old / "memory" / "memory.json"
+    info = json.loads(manifest.read_text())
+    assert info["depends_on"].pop("closure") == {"descriptor": "sift"}
+    manifest.write_text(json.dumps(info))
+    with pytest.raises(SavedMemoryError, match='made with closure[.]descriptor = "orb", this run has "sift"'):
+        run(tmp_path / "x", config=config_from_dict(QUIET), progress=False, stop=5, memory_from=old)
     assert not (tmp_path / "x").exists()
 
 

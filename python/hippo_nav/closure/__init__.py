@@ -3,8 +3,8 @@
 A closure proposer (`proposers.py`, the plug point) suggests a place the map knows and measures the pose of
 the agent against it; the experience map (Rust, `hippo_nav.map`, docs/map.md) decides whether the closure
 becomes a loop link. The built-in proposer, `ViewCellPnpClosure`, is driven by familiar view cells: it
-keeps a compact stereo keyframe per map vertex (`keyframes.py`: ORB features with stereo 3-D points) and
-measures a revisit by PnP of the stored 3-D points in the current image (`measure.py`: ORB matches, PnP
+keeps a compact stereo keyframe per map vertex (`keyframes.py`: SIFT features, or ORB's, with stereo 3-D
+points) and measures a revisit by PnP of the stored 3-D points in the current image (`measure.py`: matches, PnP
 with RANSAC, `camera_cur_from_camera_key`); a closure is proposed only with enough inliers, its planar part
 and covariance (from the reprojection Jacobian) becoming the loop link.
 

@@ -1,9 +1,11 @@
 """Compact stereo keyframes: what a map vertex keeps so that a later visit can measure its pose.
 
-A keyframe holds, for up to `keyframe_features` ORB corners of the left image that have a stereo match,
-the pixel position (float32), the 256-bit ORB descriptor (32 bytes) and the 3-D point in the camera
-frame (float32, x right, y down, z forward; depth `Z = fx·b/d` from the disparity d): 52 bytes a
-feature, about 16 kB at 300 features — no image is stored.
+A keyframe holds, for up to `keyframe_features` features of the left image that have a stereo match, the
+pixel position (float32), the descriptor and the 3-D point in the camera frame (float32, x right, y down,
+z forward; depth `Z = fx·b/d` from the disparity d) — no image is stored. The descriptor (`descriptor`) is
+SIFT's by default, 128 bytes (148 bytes a feature, about 44 kB at 300 features), or ORB's 256 bits (52 bytes a
+feature, about 16 kB): ORB's binary tests flip under another light and hard shadows, SIFT's gradient
+histograms much less, and SIFT's measurements on real KITTI were about half as far off (docs/views.md).
 
 Stereo matching follows the VO (`hippo_nav.vo`): each corner is tracked into the right image with
 pyramidal KLT started at the disparity of a typical depth, checked back into the left image, and kept when
@@ -20,7 +22,7 @@ from typing import Any, Literal
 
 import cv2
 import numpy as np
-from pydantic import ConfigDict, Field
+from pydantic import ConfigDict, Field, model_validator
 
 from hippo_nav._core import HippoNavError, _refine_matches
 from hippo_nav._defaults import ConfigSection
@@ -35,10 +37,11 @@ class ClosureConfig(ConfigSection):
         500, ge=16, le=20000, description="features (ORB corners or SIFT blobs) detected per left image"
     )
     descriptor: Literal["orb", "sift"] = Field(
-        "orb",
-        description="what a keyframe's features are described by: ORB (32 bytes, Hamming) or SIFT (128 "
-        "bytes, L2). Across a change of light, shadows, noise and blur (the `strong` renders) SIFT matches "
-        "true revisits where ORB does not, at 2-3x the extraction time (docs/views.md)",
+        "sift",
+        description="what a keyframe's features are described by: SIFT (128 bytes, L2) or ORB (32 bytes, "
+        "Hamming). Across a change of light, shadows, noise and blur (the `strong` renders) SIFT matches "
+        "true revisits where ORB does not, and on real KITTI its measurements are about half as far off, at "
+        "2-3x ORB's extraction time (docs/views.md, docs/results.md)",
     )
     keyframe_features: int = Field(
         300, ge=16, le=20000, description="strongest stereo features a keyframe keeps"
@@ -234,6 +237,19 @@ class ClosureConfig(ConfigSection):
     relocalisation_agreement_rad: float = Field(
         0.05, gt=0.0, description="… and within this heading of each other"
     )
+
+    @model_validator(mode="after")
+    def _birdseye_on_orb(self) -> ClosureConfig:
+        # The bird's-eye submaps were built and measured on ORB corners' stereo points; on SIFT's (blob
+        # centres, whose stereo depths along a street are noisier) the out-and-back test registered 29 m off
+        # and the pipeline accepted false closures, so the two are not combined.
+        if self.birdseye and self.descriptor != "orb":
+            raise ValueError(
+                'closure.birdseye needs ORB keyframes: set closure.descriptor = "orb" with it (bird\'s-eye '
+                "submaps are built from the keyframes' stereo points, measured only on ORB corners; docs/map.md)"
+            )
+        return self
+
     stereo_row_tolerance_px: float = Field(1.5, gt=0.0)
     refine_stereo: bool = Field(
         True,

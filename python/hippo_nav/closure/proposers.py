@@ -15,7 +15,7 @@ The built-in proposer, `ViewCellPnpClosure`: a familiar view suggests a place th
 candidates are the vertex where that view cell was first seen and its `anchor_neighbours` odometry
 neighbours on either side, kept by the map
 when far enough back along the path and inside its loop gate (`ExperienceMap.loop_candidates`); the current
-stereo frame measures the nearest `candidates_per_frame` against their stored keyframes (ORB + PnP,
+stereo frame measures the nearest `candidates_per_frame` against their stored keyframes (SIFT + PnP,
 `LoopMeasurer`) and the first verified one is proposed, at most one accepted closure per
 `closure_spacing_m` of travel. Every new vertex keeps its frame's keyframe.
 

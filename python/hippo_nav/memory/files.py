@@ -198,6 +198,10 @@ def read_memory(path: str | Path) -> SavedMemory:
     )
 
 
+# Settings a memory records only since a later version, with the value every memory saved before had.
+_RECORDED_LATER: dict[str, Any] = {"closure.descriptor": "orb"}
+
+
 def _same(a: Any, b: Any) -> bool:
     if isinstance(a, float) or isinstance(b, float):
         try:
@@ -211,7 +215,7 @@ def check_compatible(memory: SavedMemory, now: dict[str, Any]) -> None:
     """Refuse a memory whose stored parts this run could not use: `now` holds this run's values of the
     settings in `memory.info["depends_on"]` (same flattened names) and its camera; the first difference is
     an error naming the setting, both values and the fix."""
-    saved = dotted(memory.info.get("depends_on", {}))
+    saved = {**_RECORDED_LATER, **dotted(memory.info.get("depends_on", {}))}
     current = dotted(now)
     for name in sorted(set(saved) | set(current)):
         a, b = saved.get(name, "<absent>"), current.get(name, "<absent>")

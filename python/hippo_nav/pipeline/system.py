@@ -316,6 +316,8 @@ class SlamSystem:
         return {
             "parts": {"view_cells": kind, "closure": cfg["parts"]["closure"]},
             "view_cells": descriptor,
+            # The keyframes' descriptors: SIFT's and ORB's cannot be matched with each other.
+            "closure": {"descriptor": cfg["closure"]["descriptor"]},
             "engine": cfg["engine"],
             "lesions": cfg["lesions"],
             "map": cfg["map"],
