@@ -240,9 +240,9 @@ class ClosureConfig(ConfigSection):
 
     @model_validator(mode="after")
     def _birdseye_on_orb(self) -> ClosureConfig:
-        # The bird's-eye submaps were built and measured on ORB corners' stereo points; on SIFT's (blob
-        # centres, whose stereo depths along a street are noisier) the out-and-back test registered 29 m off
-        # and the pipeline accepted false closures, so the two are not combined.
+        # The bird's-eye submaps were built and measured on ORB corners' stereo points; on SIFT's blob centres
+        # the out-and-back test registered 29 m off and the pipeline accepted false closures (why was not
+        # established), so the two are not combined.
         if self.birdseye and self.descriptor != "orb":
             raise ValueError(
                 'closure.birdseye needs ORB keyframes: set closure.descriptor = "orb" with it (bird\'s-eye '

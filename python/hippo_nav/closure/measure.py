@@ -1,10 +1,10 @@
 """The relative pose of a revisit: a stored keyframe's 3-D points found in the current stereo frame.
 
 Matches: the keyframe's descriptors against the current frame's (brute force; SIFT's, the default, by L2,
-ORB's with `closure.descriptor = "orb"` by Hamming distance), kept when the best is clearly better than the second best (Lowe's
-ratio). Pose: PnP with RANSAC on (keyframe 3-D
-points, current pixels) gives the inliers and a first `camera_cur_from_camera_key`; a two-view stereo bundle
-adjustment of the inliers (`LoopMeasurer._refine`) gives the pose and its covariance. A closure is rejected
+ORB's with `closure.descriptor = "orb"` by Hamming distance), kept when the best is clearly better than the
+second best (Lowe's ratio). Pose: PnP with RANSAC on (keyframe 3-D points, current pixels) gives the inliers
+and a first `camera_cur_from_camera_key`; a two-view stereo bundle adjustment of the inliers
+(`LoopMeasurer._refine`) gives the pose and its covariance. A closure is rejected
 with fewer than `min_inliers` inliers, an inlier share below `min_inlier_ratio`, a keyframe farther than
 `max_distance_m`, or a position less certain than `max_sigma_m` (on the synthetic renders true revisits give
 70–340 inliers, unrelated places fewer than 10).
