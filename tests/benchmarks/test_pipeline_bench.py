@@ -126,3 +126,22 @@ def test_pipeline_real_kitti_06_sift_keyframes(benchmark, shared_data):
     data = KittiOdometry(shared_data / "kitti_odometry", "06")
     data.name = "KITTI 06 frames 0-50, SIFT keyframes (baseline: ORB)"
     _bench(benchmark, data, {"closure": {"descriptor": "sift"}}, {"closure": {"descriptor": "orb"}})
+
+
+def test_pipeline_birdseye_out_and_back(benchmark):
+    """Bird's-eye closures on (`closure.birdseye`) against the same pipeline without them, in the same
+    rounds, on the rendered out-and-back street of `tests/closure/test_birdseye.py` (a street driven there and
+    back, with posts): what the bird's-eye search costs where the map has old places to search."""
+    import importlib.util
+    from pathlib import Path
+
+    spec = importlib.util.spec_from_file_location(
+        "test_birdseye", Path(__file__).parents[1] / "closure" / "test_birdseye.py"
+    )
+    assert spec is not None and spec.loader is not None
+    route = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(route)
+    benchmark.group = "pipeline with bird's-eye closures"
+    data = route.out_and_back.__wrapped__()
+    data.name = "out-and-back street with posts, bird's-eye closures (baseline: off)"
+    _bench(benchmark, data, {"closure": {"birdseye": True}}, {"closure": {"birdseye": False}})

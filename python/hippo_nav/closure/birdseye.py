@@ -11,12 +11,18 @@ place is also described from above (docs/map.md, "Bird's-eye closures"):
 - **Submap.** The structure points of the vertices within a stretch of path, placed by the map's vertex poses
   (locally as good as the odometry) in the frame of one vertex (`Submap`). A stored place uses the vertices
   `birdseye_submap_m / 2` on either side of it; the query, the newest vertex, the `birdseye_submap_m` behind it.
-- **Ring key** (`Submap.ring_key`, after Scan Context): the share of occupied cells in each ring around the
-  centre. It does not change with heading, so it ranks the candidate places for any direction of travel.
+- **Weights** (`structure_weights`): each point weighs by how isotropic the structure around it is (the
+  structure tensor of the blurred occupancy, least over greatest eigenvalue): a wall's points little, a post's,
+  a corner's or a junction's fully, so that what tells stretches of street apart decides the registration.
+- **Search** (`BirdsEyeSearch`): the query is registered at once onto the map's whole structure around where the
+  odometry puts it (`birdseye_search_m`, `birdseye_search_rad`, or the loop gate if smaller): one correlation
+  per heading over that area, so the peak must stand out from every other place the agent may be, not from a
+  few ranked candidates. The place found is then registered again onto the submap of the old vertex nearest to
+  it (far from that vertex the old stretch bends with the odometry's drift); that is the measurement.
 - **Self-similarity** (`self_similarity`): a straight street of walls slides along itself, and no registration
   can place it along its length; such a submap (`birdseye_max_self_similarity`) is not registered at all.
 - **Registration** (`register`): an exhaustive rotation search (the headings the loop gate admits, in
-  5° steps; every translation at once by FFT cross-correlation of blurred occupancy images at
+  5° steps; every translation at once by FFT cross-correlation of blurred, weighted occupancy images at
   0.5 m) finds the alignment; Gauss–Newton on the target's distance transform refines it,
   and its Hessian gives the information. A registration is refused when the correlation peak is not distinct
   from the best alignment elsewhere (`birdseye_min_peak_ratio`: a symmetric square or junction), when too few
@@ -58,9 +64,12 @@ _INLIER_M = 0.75  # a registered point this close to target structure fits
 _MAX_SIGMA_M = 0.3  # a registration less certain than this in some direction is refused
 _POINT_SIGMA_M = 0.2  # least residual of a registered point
 _COVARIANCE_INFLATION = 10.0  # the registration's points are not independent
+_SIGMA_FLOOR_M, _SIGMA_FLOOR_RAD = 0.3, np.radians(1.0)  # a registration is no more certain than this
 _PROBE_M = 5.0  # shift at which a submap's self-similarity is probed
 _CONFIRM_WINDOW_M = 30.0  # travel within which two registrations confirm each other
 _AGREEMENT_M, _AGREEMENT_RAD = 1.5, 0.05  # confirming registrations place the agent this close
+_OFF_PATH_M = 8.0  # a registration this far from every old vertex is not on the old path
+_LOCAL_REACH_M, _LOCAL_REACH_RAD = 3.0, 0.1  # the local registration's search around the place found
 
 # Ring key: rings of this width (m), and the occupancy cell it counts (m).
 _RING_WIDTH_M = 3.0
@@ -74,6 +83,7 @@ _SHARED_M = 3.0
 # Alignments this far apart (cells of the coarse image; rotation steps) count as "elsewhere" for the peak ratio.
 _ELSEWHERE_CELLS = 3
 _ELSEWHERE_STEPS = 3
+_WEIGHTED = True  # experiment switch
 
 
 def structure_points(points_camera_m: np.ndarray, config) -> np.ndarray:
@@ -100,21 +110,6 @@ class Submap:
 
     def __len__(self) -> int:
         return len(self.points_m)
-
-    def ring_key(self) -> np.ndarray:
-        """Share of occupied `_RING_CELL_M` cells in each `_RING_WIDTH_M` ring around the centre: the same
-        whatever the heading (module doc)."""
-        cells = np.unique(np.floor(self.points_m / _RING_CELL_M).astype(np.int64), axis=0)
-        centres = (cells + 0.5) * _RING_CELL_M
-        rings = int(np.ceil(self.radius_m / _RING_WIDTH_M))
-        ring = np.minimum(
-            (np.hypot(centres[:, 0], centres[:, 1]) / _RING_WIDTH_M).astype(np.int64), rings - 1
-        )
-        occupied = np.bincount(ring, minlength=rings).astype(np.float64)
-        # Cells per ring: the annulus's area in cells.
-        edges = np.arange(rings + 1) * _RING_WIDTH_M
-        area = np.pi * np.diff(edges**2) / _RING_CELL_M**2
-        return occupied / area
 
 
 def submap(
@@ -177,8 +172,17 @@ def register(
     cfg = config
     if len(query) < cfg.birdseye_min_points or len(target) < cfg.birdseye_min_points:
         return None, "birdseye_few_points"
-    radius_m = max(query.radius_m, target.radius_m)
-    yaw_rad, shift_m, ratio = _coarse(query.points_m, target.points_m, radius_m, cfg, prior)
+    weights_q, weights_t = _weights(query), _weights(target)
+    yaw_rad, shift_m, ratio = _coarse(
+        query.points_m,
+        target.points_m,
+        query.radius_m,
+        cfg,
+        prior,
+        target_radius_m=target.radius_m,
+        query_weights=weights_q,
+        target_weights=weights_t,
+    )
     if ratio < cfg.birdseye_min_peak_ratio:
         return None, "birdseye_ambiguous"
     fine = _refine(query.points_m, target.points_m, np.array([shift_m[0], shift_m[1], yaw_rad]), cfg)
@@ -194,9 +198,12 @@ def register(
     sigma_max_m = float(np.sqrt(max(np.linalg.eigvalsh(covariance[:2, :2]).max(), 0.0)))
     if not np.isfinite(sigma_max_m) or sigma_max_m > _MAX_SIGMA_M:
         return None, "birdseye_degenerate"
-    covariance = covariance * _COVARIANCE_INFLATION + np.diag(
-        [cfg.sigma_floor_xy_m**2, cfg.sigma_floor_xy_m**2, cfg.sigma_floor_yaw_rad**2]
-    )
+    # The floor is the submaps' own accuracy, whatever the number of points: a post smears along the line
+    # of sight by its stereo depth error, the same way in every point of it (registrations of the 08 render
+    # were 0.1-2.3 m off, median 0.4 m).
+    floor_m = max(cfg.sigma_floor_xy_m, _SIGMA_FLOOR_M)
+    floor_rad = max(cfg.sigma_floor_yaw_rad, _SIGMA_FLOOR_RAD)
+    covariance = covariance * _COVARIANCE_INFLATION + np.diag([floor_m**2, floor_m**2, floor_rad**2])
     registration = BirdsEyeRegistration(
         (float(pose[0]), float(pose[1]), float(wrap_angle(pose[2]))),
         np.linalg.inv(covariance),
@@ -219,38 +226,97 @@ def _raster(points_m: np.ndarray, cell_m: float, half_cells: int, size: int, sta
     return counts.reshape(stack, size, size).astype(np.float32)
 
 
-def _blurred_occupancy_spectra(points_m: np.ndarray, radius_m: float) -> tuple[np.ndarray, int, int]:
-    """(spectra (stack, size, size//2 + 1), half cells, size) of the occupancy images of (stack, n, 2) points
-    within `radius_m`, in `_COARSE_CELL_M` cells, blurred by a Gaussian of `_BLUR_M` (one product in the
-    Fourier domain). Occupancy, not counts: a wall seen from many vertices must not outweigh one seen once.
-    The images are zero-padded to `size` ≥ 4·half, so correlations of two of them do not wrap around."""
+def _blurred_spectra(points_m: np.ndarray, weights: np.ndarray | None, half: int, size: int) -> np.ndarray:
+    """Spectra (stack, size, size//2 + 1) of the images of (stack, n, 2) points in `_COARSE_CELL_M` cells,
+    the centre at cell (half, half), blurred by a Gaussian of `_BLUR_M` (one product in the Fourier domain).
+    A cell holds the largest weight of its points (`weights` (n,), the same for every layer; None: 1):
+    occupancy, not counts, so that a wall seen from many vertices does not outweigh a post seen once."""
     cell = _COARSE_CELL_M
-    half = int(np.ceil(radius_m / cell))
-    size = int(2 ** np.ceil(np.log2(4 * half)))
-    occupancy = np.minimum(_raster(points_m, cell, half, size, len(points_m)), 1.0)
+    stack = len(points_m)
+    if weights is None:
+        image = np.minimum(_raster(points_m, cell, half, size, stack), 1.0)
+    else:
+        idx = np.floor(points_m / cell).astype(np.int64) + half
+        inside = ((idx >= 0) & (idx < 2 * half)).all(axis=-1)
+        layer = np.broadcast_to(np.arange(stack)[:, None], inside.shape)
+        flat = ((layer * size + idx[..., 0]) * size + idx[..., 1])[inside]
+        w = np.broadcast_to(np.asarray(weights, np.float32)[None], inside.shape)[inside]
+        image = np.zeros(stack * size * size, np.float32)
+        np.maximum.at(image, flat, w)
+        image = image.reshape(stack, size, size)
     fy = np.fft.fftfreq(size)[:, None]
     fx = np.fft.rfftfreq(size)[None, :]
     blur = np.exp(-2 * (np.pi * _BLUR_M / cell) ** 2 * (fx**2 + fy**2))
-    return np.fft.rfft2(occupancy) * blur, half, size
+    return np.fft.rfft2(image) * blur
+
+
+def _blurred_occupancy_spectra(points_m: np.ndarray, radius_m: float) -> tuple[np.ndarray, int, int]:
+    """(spectra, half cells, size) of the blurred occupancy images of (stack, n, 2) points within `radius_m`
+    (`_blurred_spectra`), zero-padded to `size` ≥ 4·half so that correlations of two of them do not wrap."""
+    half = int(np.ceil(radius_m / _COARSE_CELL_M))
+    size = int(2 ** np.ceil(np.log2(4 * half)))
+    return _blurred_spectra(points_m, None, half, size), half, size
+
+
+_CORNER_BLOCK_CELLS = 9  # the structure tensor's window (4.5 m: a post and the wall behind it)
+_ISOTROPY_FULL = 0.5  # a point whose structure tensor is this isotropic (least over greatest) weighs fully
+
+
+def structure_weights(points_m: np.ndarray, radius_m: float) -> np.ndarray:
+    """(n,) float32 weight in [0, 1] of each point: how firmly the structure around it is pinned in every
+    direction — the ratio of the least to the greatest eigenvalue of the structure tensor of the blurred
+    occupancy at its cell (over a 4.5 m window), over `_ISOTROPY_FULL`. A wall's points slide along the wall
+    and weigh little (median 0.14 on a noisy straight wall); a post's, a corner's or a junction's weigh fully.
+    Weighted, a registration is decided by what tells stretches of street apart rather than by the walls
+    every street has (docs/map.md, "Bird's-eye closures"). Heading-invariant: the weights are computed in the
+    submap's own frame and travel with its points."""
+    pts = np.asarray(points_m, np.float32).reshape(-1, 2)
+    if not len(pts):
+        return np.zeros(0, np.float32)
+    cell = _COARSE_CELL_M
+    half = int(np.ceil(radius_m / cell)) + _CORNER_BLOCK_CELLS
+    image = np.minimum(_raster(pts[None], cell, half, 2 * half), 1.0)[0]
+    blurred = cv2.GaussianBlur(image, (0, 0), _BLUR_M / cell)
+    eigen = cv2.cornerEigenValsAndVecs(blurred, _CORNER_BLOCK_CELLS, 3)
+    least = np.minimum(eigen[..., 0], eigen[..., 1])
+    greatest = np.maximum(np.maximum(eigen[..., 0], eigen[..., 1]), 1e-12)
+    idx = np.clip(np.floor(pts / cell).astype(np.int64) + half, 0, 2 * half - 1)
+    isotropy = least[idx[:, 0], idx[:, 1]] / greatest[idx[:, 0], idx[:, 1]]
+    return np.clip(isotropy / _ISOTROPY_FULL, 0.0, 1.0).astype(np.float32)
+
+
+def _weights(sub: Submap) -> np.ndarray | None:
+    return structure_weights(sub.points_m, sub.radius_m) if _WEIGHTED else None
 
 
 def _coarse(
-    query_m: np.ndarray, target_m: np.ndarray, radius_m: float, cfg, prior
+    query_m: np.ndarray,
+    target_m: np.ndarray,
+    radius_m: float,
+    cfg,
+    prior,
+    target_radius_m: float | None = None,
+    query_weights: np.ndarray | None = None,
+    target_weights: np.ndarray | None = None,
 ) -> tuple[float, np.ndarray, float]:
     """(yaw rad, shift m, peak ratio) of the best alignment target ≈ R(yaw)·query + shift, searched over the
     headings and translations the prior admits (module doc); the ratio is over the best alignment elsewhere
-    that the prior admits too."""
+    that the prior admits too. `radius_m`: the query's extent; `target_radius_m`: the target's (None: the
+    same); weights: per point (`structure_weights`), None: plain occupancy."""
     cell = _COARSE_CELL_M
-    half = int(np.ceil(radius_m / cell))
-    size = int(2 ** np.ceil(np.log2(4 * half)))  # as `_blurred_occupancy_spectra` pads
     steps = int(_ROTATIONS)
     all_angles = 2 * np.pi * np.arange(steps) / steps
-    shift = np.fft.fftfreq(size, 1.0 / size)
     if prior is None:
         centre, reach_m, headings = np.zeros(2), _MAX_SHIFT_M, np.ones(steps, bool)
     else:
         centre, reach_m = np.asarray(prior[0][:2], np.float64), float(prior[1])
         headings = np.abs(wrap_angle(all_angles - prior[0][2])) <= prior[2] + np.pi / steps
+    half_q = int(np.ceil(radius_m / cell))
+    half_t = int(np.ceil((radius_m if target_radius_m is None else target_radius_m) / cell))
+    half = max(half_q, half_t)
+    # Shifts up to `reach` (around the prior's centre) must not wrap around: size ≥ half_t + half_q + reach.
+    reach_cells = int(np.ceil((reach_m + np.hypot(*centre)) / cell))
+    size = _fast_length(max(2 * half, half_t + half_q + reach_cells + 1))
     # Only the headings the prior admits are searched (the costly part: one image and FFT each).
     index = np.flatnonzero(headings)
     if not len(index):
@@ -260,8 +326,8 @@ def _coarse(
     rotated = np.stack(
         [c * query_m[:, 0] - s * query_m[:, 1], s * query_m[:, 0] + c * query_m[:, 1]], axis=-1
     )
-    fq, _, _ = _blurred_occupancy_spectra(rotated, radius_m)
-    ft, _, _ = _blurred_occupancy_spectra(target_m[None], radius_m)
+    fq = _blurred_spectra(rotated, query_weights, half, size)
+    ft = _blurred_spectra(target_m[None], target_weights, half, size)
     corr = np.fft.irfft2(np.conj(fq) * ft, s=(size, size))  # corr[k, s] = Σ_x Q_k(x)·T(x + s)
     # Norms of the blurred images by Parseval (rfft halves count twice, but for the first and Nyquist columns).
     weight = np.full(fq.shape[-1], 2.0)
@@ -269,15 +335,15 @@ def _coarse(
     if size % 2 == 0:
         weight[-1] = 1.0
     norm_q = np.sqrt(np.maximum((np.abs(fq) ** 2 * weight).sum(axis=(1, 2)) / size**2, 1e-12))
-    norm_t = np.sqrt(max(float((np.abs(ft) ** 2 * weight).sum()) / size**2, 1e-12))
-    # Shifts the correlation holds without wrapping around, within the prior's reach.
-    linear = np.abs(shift) <= size - 2 * half
-    window = (
-        (np.hypot(shift[:, None] * cell - centre[0], shift[None, :] * cell - centre[1]) <= reach_m)
-        & linear[:, None]
-        & linear[None, :]
-    )
-    score = np.where(window[None], corr, -np.inf) / (norm_q[:, None, None] * norm_t)
+    # One norm for the whole target: a shift's score is how much of the query's structure the target holds
+    # there (occupancy is clipped, so a stretch seen on several passes weighs no more than one seen once).
+    norm_t_at = np.sqrt(max(float((np.abs(ft) ** 2 * weight).sum()) / size**2, 1e-12))
+    # Only the shifts within reach (around the prior's centre) are scored: the correlation cropped to them,
+    # in order from -reach to +reach (the sizes above keep them from wrapping around).
+    ring = np.arange(-reach_cells, reach_cells + 1)
+    crop = corr[:, (ring % size)[:, None], (ring % size)[None, :]]
+    window = np.hypot(ring[:, None] * cell - centre[0], ring[None, :] * cell - centre[1]) <= reach_m
+    score = np.where(window[None], crop, -np.inf) / (norm_q[:, None, None] * norm_t_at)
     best = np.unravel_index(int(np.argmax(score)), score.shape)
     k, i, j = (int(v) for v in best)
     peak = float(score[k, i, j])
@@ -287,12 +353,24 @@ def _coarse(
     dk = np.abs((index - index[k] + steps // 2) % steps - steps // 2)
     other = score[dk > _ELSEWHERE_STEPS].max(initial=-np.inf)
     near = score[dk <= _ELSEWHERE_STEPS].copy()
-    di = np.abs((np.arange(size) - i + size // 2) % size - size // 2)
-    dj = np.abs((np.arange(size) - j + size // 2) % size - size // 2)
+    di, dj = np.abs(ring - ring[i]), np.abs(ring - ring[j])
     near[:, (di[:, None] <= _ELSEWHERE_CELLS) & (dj[None, :] <= _ELSEWHERE_CELLS)] = -np.inf
     other = max(float(other), float(near.max(initial=-np.inf)))
     ratio = peak / other if other > 0 else np.inf
-    return float(angles[k]), np.array([shift[i] * cell, shift[j] * cell]), float(ratio)
+    return float(angles[k]), np.array([ring[i] * cell, ring[j] * cell]), float(ratio)
+
+
+def _fast_length(n: int) -> int:
+    """The least n' ≥ n whose only prime factors are 2, 3 and 5 (a size the FFT handles fast)."""
+    m = int(n)
+    while True:
+        rest = m
+        for p in (2, 3, 5):
+            while rest % p == 0:
+                rest //= p
+        if rest == 1:
+            return m
+        m += 1
 
 
 def _refine(query_m: np.ndarray, target_m: np.ndarray, start: np.ndarray, cfg):
@@ -370,7 +448,7 @@ class BirdsEyeSearch:
     def __init__(self, config) -> None:
         self.config = config
         self.points: dict[int, np.ndarray] = {}  # vertex → structure points (forward, left) in its frame
-        self._ring_keys: dict[int, np.ndarray] = {}
+        self._separation_m: float | None = None
         self._last_odometer_m = -np.inf
         self._last_vertex = -1
         # Registrations not yet confirmed: (odometer m, the map correction it implies (x, y, yaw)).
@@ -418,78 +496,107 @@ class BirdsEyeSearch:
         poses = np.asarray(experience_map.poses(), np.float64)
         # Path length along the vertices (a session's jump counts as a long path: no submap spans it).
         path_m = np.r_[0.0, np.cumsum(np.hypot(*np.diff(poses[:, :2], axis=0).T))]
-        half = 0.5 * cfg.birdseye_submap_m
         query = self._submap(newest, -cfg.birdseye_submap_m, 0.0, poses, path_m, keyframe_of)
         if len(query) < cfg.birdseye_min_points:
             return (*none, "birdseye_few_points")
-        if self_similarity(query, cfg) > cfg.birdseye_max_self_similarity:
+        if (
+            cfg.birdseye_max_self_similarity < 1.0
+            and self_similarity(query, cfg) > cfg.birdseye_max_self_similarity
+        ):
             return (*none, "birdseye_featureless")
         radius_m, yaw_rad = experience_map.loop_gate()
-        near = experience_map.vertices_near(radius_m + cfg.birdseye_radius_m, planar_step)
-        gated = [int(c[0]) for c in experience_map.loop_candidates(near, planar_step)] if near else []
-        if not gated:
-            return (*none, "birdseye_no_candidate")
-        key = query.ring_key()
-        scored = []
-        for v in gated:
-            ring = self._ring_keys.get(v)
-            if ring is None:
-                ring = self._submap(v, -half, half, poses, path_m, keyframe_of).ring_key()
-                self._ring_keys[v] = ring
-            scored.append((float(np.abs(ring - key).sum()), v))
-        scored.sort()
-        chosen: list[int] = []
-        for _, v in scored:
-            # Distinct places: candidates a submap's half-span apart along the path.
-            if all(abs(path_m[v] - path_m[u]) >= half for u in chosen):
-                chosen.append(v)
-            if len(chosen) == cfg.birdseye_candidates:
-                break
-        why = "birdseye_no_candidate"
+        # Where the agent may be: the loop gate, but no farther than the odometry's own likely drift
+        # (`birdseye_search_m`): the search is one correlation over that whole area, not a few candidates.
+        search_m = min(radius_m, cfg.birdseye_search_m)
+        # Structure farther than this from the newest vertex cannot meet the query's at any shift searched.
+        reach_m = search_m + cfg.birdseye_radius_m
         here = experience_map.world_from_agent
         if here is None:
             return (*none, "")
+        # Old enough: its structure cannot overlap the query's own stretch of path.
+        separation_m = max(
+            self._min_separation_m(experience_map), cfg.birdseye_submap_m + 2 * cfg.birdseye_max_depth_m
+        )
+        near = experience_map.vertices_near(reach_m + cfg.birdseye_max_depth_m, planar_step)
+        old = np.array([v for v in near if path_m[newest] - path_m[v] >= separation_m], np.int64)
+        if not len(old):
+            return (*none, "birdseye_no_candidate")
+        # The map's structure there, in the newest vertex's frame: the identity is where the odometry puts the
+        # query, and the registration says how far the map has drifted from it.
+        region = submap(poses[newest], poses[old], [self._points(int(u), keyframe_of) for u in old], reach_m)
+        if len(region) < cfg.birdseye_min_points:
+            return (*none, "birdseye_few_points")
+        prior = (np.zeros(3), search_m, min(yaw_rad, cfg.birdseye_search_rad))
+        yaw_found, shift_found, ratio = _coarse(
+            query.points_m,
+            region.points_m,
+            query.radius_m,
+            cfg,
+            prior,
+            target_radius_m=region.radius_m,
+            query_weights=_weights(query),
+            target_weights=_weights(region),
+        )
+        # The closure joins the agent to the old vertex nearest to where the search puts the query's centre.
+        # Far from that vertex the map's old stretch bends with the odometry's drift, so the measurement is
+        # the registration onto that vertex's own submap, starting from the place found.
+        at = se2_compose(poses[newest], np.array([shift_found[0], shift_found[1], yaw_found]))
+        # Where the agent (up to a vertex spacing past the newest vertex) then is in the map.
         agent = se2_compose(np.array(here), np.array(planar_step))
         agent_from_newest = se2_between(agent, poses[newest])
-        for v in chosen:
-            target = self._submap(v, -half, half, poses, path_m, keyframe_of)
-            if self_similarity(target, cfg) > cfg.birdseye_max_self_similarity:
-                why = "birdseye_featureless"
-                continue
-            prior = (se2_between(poses[v], poses[newest]), radius_m, yaw_rad)
-            registration, why = register(query, target, cfg, prior)
-            if registration is None:
-                continue
-            # The closure joins the agent to the vertex of the target's stretch nearest to where the
-            # registration puts it (the map's short path from the candidate to it is locally exact).
-            target_from_newest = np.array(registration.target_from_query)
-            members = np.flatnonzero(np.abs(path_m - path_m[v]) <= half)
-            at = se2_compose(poses[v], target_from_newest)
-            w = int(members[np.argmin(np.hypot(*(poses[members, :2] - at[:2]).T))])
-            w_from_newest = se2_compose(se2_between(poses[w], poses[v]), target_from_newest)
-            agent_from_target, information = _agent_from_target(
-                agent_from_newest, w_from_newest, registration.information
-            )
-            log.debug(
-                "vertex %d: bird's-eye registration onto %d: %s (inliers %d, overlap %.2f, peak ratio %.2f)",
-                newest,
-                w,
-                np.round(w_from_newest, 2),
-                registration.inliers,
-                registration.overlap,
-                registration.peak_ratio,
-            )
-            if cfg.birdseye_confirm and not self._confirmed(odometer, poses[w], agent_from_target, agent):
-                return (*none, "birdseye_unconfirmed")
-            return w, agent_from_target, information, "measured"
-        return (*none, why)
+        agent_at = se2_compose(at, se2_between(agent_from_newest, np.zeros(3)))
+        distance = np.hypot(*(poses[old, :2] - agent_at[:2]).T)
+        w = int(old[np.argmin(distance)])
+        log.debug(
+            "vertex %d: bird's-eye search found vertex %d at %.1f m, peak ratio %.2f",
+            newest,
+            w,
+            float(distance.min()),
+            ratio,
+        )
+        if ratio < cfg.birdseye_min_peak_ratio:
+            return (*none, "birdseye_ambiguous")
+        if distance.min() > _OFF_PATH_M:
+            return (*none, "birdseye_off_path")
+        half = 0.5 * cfg.birdseye_submap_m
+        target = self._submap(w, -half, half, poses, path_m, keyframe_of)
+        local_prior = (se2_between(poses[w], at), _LOCAL_REACH_M, _LOCAL_REACH_RAD)
+        registration, why = register(query, target, cfg, local_prior)
+        if registration is None:
+            return (*none, why)
+        w_from_newest = np.array(registration.target_from_query)
+        agent_from_target, information = _agent_from_target(
+            agent_from_newest, w_from_newest, registration.information
+        )
+        # As for every metric closure (`max_distance_m`): a link longer than this joins places, not a place.
+        if np.hypot(agent_from_target[0], agent_from_target[1]) > cfg.max_distance_m:
+            return (*none, "birdseye_far")
+        log.debug(
+            "vertex %d: bird's-eye registration onto %d: %s (inliers %d, overlap %.2f, peak ratio %.2f)",
+            newest,
+            w,
+            np.round(w_from_newest, 2),
+            registration.inliers,
+            registration.overlap,
+            registration.peak_ratio,
+        )
+        if cfg.birdseye_confirm and not self._confirmed(odometer, poses[w], agent_from_target, agent):
+            return (*none, "birdseye_unconfirmed")
+        return w, agent_from_target, information, "measured"
+
+    def _min_separation_m(self, experience_map) -> float:
+        if self._separation_m is None:
+            import json
+
+            self._separation_m = float(json.loads(experience_map.params_json())["min_loop_separation_m"])
+        return self._separation_m
 
     def _confirmed(self, odometer_m, world_from_target, agent_from_target, agent) -> bool:
         """Whether an earlier registration, within 30 m of travel, implies the same correction of the map as
         this one (each puts the agent within 1.5 m and 0.05 rad of the other's placement); this one is kept for
-        the next. Meant for a look-alike junction or bend, which fits one query while the next query, 5 m on,
+        the next. Meant for a look-alike junction or bend, which fits one query while the next query, 3 m on,
         sees its surroundings differ; consecutive queries along one street can fit the same wrong street
-        alike, and then only the map's consistency check stops them (docs/results.md, "Reverse loops")."""
+        alike, and then only the map's consistency check stops them."""
         measured = se2_compose(world_from_target, se2_between(np.asarray(agent_from_target), np.zeros(3)))
         correction = se2_compose(measured, se2_between(agent, np.zeros(3)))
         self._hypotheses = [h for h in self._hypotheses if odometer_m - h[0] <= _CONFIRM_WINDOW_M]

@@ -22,7 +22,7 @@ from typing import Any, Literal
 
 import cv2
 import numpy as np
-from pydantic import ConfigDict, Field, model_validator
+from pydantic import ConfigDict, Field
 
 from hippo_nav._core import HippoNavError, _refine_matches
 from hippo_nav._defaults import ConfigSection
@@ -163,7 +163,8 @@ class ClosureConfig(ConfigSection):
         False,
         description="also propose closures by registering bird's-eye submaps of stereo structure (heading "
         "invariant, for streets driven the other way; docs/map.md) when no view or proximity closure is "
-        "proposed; off: it does not close KITTI 08's render yet (docs/results.md, 'Reverse loops')",
+        "proposed; off by default for its cost where the map has old places around (docs/results.md, "
+        "'Reverse loops (08)')",
     )
     birdseye_submap_m: float = Field(
         40.0, gt=0.0, description="path a submap spans: the query's behind it, a stored place's around it"
@@ -182,10 +183,18 @@ class ClosureConfig(ConfigSection):
         0.5, description="points lower than this over the road are road, and left out"
     )
     birdseye_spacing_m: float = Field(
-        5.0, gt=0.0, description="travel between bird's-eye attempts (one per new vertex at most)"
+        3.0, gt=0.0, description="travel between bird's-eye attempts (one per new vertex at most)"
     )
-    birdseye_candidates: int = Field(
-        3, ge=1, le=100, description="gated places registered per attempt, the nearest by ring key first"
+    birdseye_search_m: float = Field(
+        40.0,
+        gt=0.0,
+        description="the registration searches the map this far around where the odometry puts the agent (or "
+        "the loop gate, if smaller): the odometry's likely drift between closures, not the gate's bound",
+    )
+    birdseye_search_rad: float = Field(
+        0.35,
+        gt=0.0,
+        description="… and within this heading of the odometry's (or the loop gate's, if smaller)",
     )
     birdseye_min_points: int = Field(
         150,
@@ -203,7 +212,7 @@ class ClosureConfig(ConfigSection):
         0.5, ge=0.0, le=1.0, description="fitting share of the query points on the shared area, at least"
     )
     birdseye_max_self_similarity: float = Field(
-        0.6,
+        1.0,
         ge=0.0,
         le=1.0,
         description="a submap whose structure correlates with itself shifted 5 m more than this slides along "
@@ -237,18 +246,6 @@ class ClosureConfig(ConfigSection):
     relocalisation_agreement_rad: float = Field(
         0.05, gt=0.0, description="… and within this heading of each other"
     )
-
-    @model_validator(mode="after")
-    def _birdseye_on_orb(self) -> ClosureConfig:
-        # The bird's-eye submaps were built and measured on ORB corners' stereo points; on SIFT's blob centres
-        # the out-and-back test registered 29 m off and the pipeline accepted false closures (why was not
-        # established), so the two are not combined.
-        if self.birdseye and self.descriptor != "orb":
-            raise ValueError(
-                'closure.birdseye needs ORB keyframes: set closure.descriptor = "orb" with it (bird\'s-eye '
-                "submaps are built from the keyframes' stereo points, measured only on ORB corners; docs/map.md)"
-            )
-        return self
 
     stereo_row_tolerance_px: float = Field(1.5, gt=0.0)
     refine_stereo: bool = Field(
