@@ -83,7 +83,9 @@ _SHARED_M = 3.0
 # Alignments this far apart (cells of the coarse image; rotation steps) count as "elsewhere" for the peak ratio.
 _ELSEWHERE_CELLS = 3
 _ELSEWHERE_STEPS = 3
-_WEIGHTED = True  # experiment switch
+# Structure weights on (`structure_weights`). Off, every point weighs 1: on the 08 render every search was then
+# ambiguous and nothing closed (docs/results.md, "Reverse loops (08)"); kept to measure that again.
+_WEIGHTED = True
 
 
 def structure_points(points_camera_m: np.ndarray, config) -> np.ndarray:
