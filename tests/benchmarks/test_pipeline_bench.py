@@ -142,6 +142,6 @@ def test_pipeline_birdseye_out_and_back(benchmark):
     route = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(route)
     benchmark.group = "pipeline with bird's-eye closures"
-    data = route.out_and_back.__wrapped__()
+    data = route.out_and_back_street()
     data.name = "out-and-back street with posts, bird's-eye closures (baseline: off)"
     _bench(benchmark, data, {"closure": {"birdseye": True}}, {"closure": {"birdseye": False}})

@@ -49,12 +49,17 @@ def _route_poses() -> np.ndarray:
     return fine_arr[at]
 
 
-@pytest.fixture(scope="module")
-def out_and_back() -> KittiOdometry:
+def out_and_back_street() -> KittiOdometry:
+    """The ROUTE rendered with posts (cached; also the bird's-eye benchmark's sequence)."""
     planar = _route_poses()
     poses = planar_poses(planar[:, 0], planar[:, 1], planar[:, 2])
     root = render_cached(poses, default_cache_dir() / "test_out_and_back_posts", "00", seed=5, poles=True)
     return KittiOdometry(root, "00")
+
+
+@pytest.fixture(scope="module")
+def out_and_back() -> KittiOdometry:
+    return out_and_back_street()
 
 
 @pytest.fixture(scope="module")

@@ -34,8 +34,10 @@ place is also described from above (docs/map.md, "Bird's-eye closures"):
 
 from __future__ import annotations
 
+import json
 import logging
 from dataclasses import dataclass
+from functools import cached_property
 
 import cv2
 import numpy as np
@@ -71,9 +73,6 @@ _AGREEMENT_M, _AGREEMENT_RAD = 1.5, 0.05  # confirming registrations place the a
 _OFF_PATH_M = 8.0  # a registration this far from every old vertex is not on the old path
 _LOCAL_REACH_M, _LOCAL_REACH_RAD = 3.0, 0.1  # the local registration's search around the place found
 
-# Ring key: rings of this width (m), and the occupancy cell it counts (m).
-_RING_WIDTH_M = 3.0
-_RING_CELL_M = 1.0
 # The fine stage's distance-transform cell (m) and Gauss–Newton iterations.
 _FINE_CELL_M = 0.2
 _ITERATIONS = 12
@@ -112,6 +111,11 @@ class Submap:
 
     def __len__(self) -> int:
         return len(self.points_m)
+
+    @cached_property
+    def weights(self) -> np.ndarray:
+        """`structure_weights` of its points (computed once: a query is registered twice)."""
+        return structure_weights(self.points_m, self.radius_m)
 
 
 def submap(
@@ -217,15 +221,27 @@ def register(
     return registration, "ok"
 
 
-def _raster(points_m: np.ndarray, cell_m: float, half_cells: int, size: int, stack: int = 1) -> np.ndarray:
+def _raster(
+    points_m: np.ndarray,
+    cell_m: float,
+    half_cells: int,
+    size: int,
+    stack: int = 1,
+    weights: np.ndarray | None = None,
+) -> np.ndarray:
     """(stack, size, size) counts of (stack, n, 2) points in cells of `cell_m`, the centre at
-    (half_cells, half_cells); axis 1 forward, axis 2 left. Points outside are dropped."""
+    (half_cells, half_cells); axis 1 forward, axis 2 left. Points outside are dropped. With `weights` (n,),
+    the same for every layer, a cell holds the largest weight of its points instead of their count."""
     idx = np.floor(points_m / cell_m).astype(np.int64) + half_cells
     inside = ((idx >= 0) & (idx < 2 * half_cells)).all(axis=-1)
     layer = np.broadcast_to(np.arange(stack)[:, None], inside.shape)
-    flat = (layer * size + idx[..., 0]) * size + idx[..., 1]
-    counts = np.bincount(flat[inside], minlength=stack * size * size)
-    return counts.reshape(stack, size, size).astype(np.float32)
+    flat = ((layer * size + idx[..., 0]) * size + idx[..., 1])[inside]
+    if weights is None:
+        image = np.bincount(flat, minlength=stack * size * size).astype(np.float32)
+    else:
+        image = np.zeros(stack * size * size, np.float32)
+        np.maximum.at(image, flat, np.broadcast_to(np.asarray(weights, np.float32), inside.shape)[inside])
+    return image.reshape(stack, size, size)
 
 
 def _blurred_spectra(points_m: np.ndarray, weights: np.ndarray | None, half: int, size: int) -> np.ndarray:
@@ -234,18 +250,7 @@ def _blurred_spectra(points_m: np.ndarray, weights: np.ndarray | None, half: int
     A cell holds the largest weight of its points (`weights` (n,), the same for every layer; None: 1):
     occupancy, not counts, so that a wall seen from many vertices does not outweigh a post seen once."""
     cell = _COARSE_CELL_M
-    stack = len(points_m)
-    if weights is None:
-        image = np.minimum(_raster(points_m, cell, half, size, stack), 1.0)
-    else:
-        idx = np.floor(points_m / cell).astype(np.int64) + half
-        inside = ((idx >= 0) & (idx < 2 * half)).all(axis=-1)
-        layer = np.broadcast_to(np.arange(stack)[:, None], inside.shape)
-        flat = ((layer * size + idx[..., 0]) * size + idx[..., 1])[inside]
-        w = np.broadcast_to(np.asarray(weights, np.float32)[None], inside.shape)[inside]
-        image = np.zeros(stack * size * size, np.float32)
-        np.maximum.at(image, flat, w)
-        image = image.reshape(stack, size, size)
+    image = np.minimum(_raster(points_m, cell, half, size, len(points_m), weights), 1.0)
     fy = np.fft.fftfreq(size)[:, None]
     fx = np.fft.rfftfreq(size)[None, :]
     blur = np.exp(-2 * (np.pi * _BLUR_M / cell) ** 2 * (fx**2 + fy**2))
@@ -288,7 +293,7 @@ def structure_weights(points_m: np.ndarray, radius_m: float) -> np.ndarray:
 
 
 def _weights(sub: Submap) -> np.ndarray | None:
-    return structure_weights(sub.points_m, sub.radius_m) if _WEIGHTED else None
+    return sub.weights if _WEIGHTED else None
 
 
 def _coarse(
@@ -588,8 +593,6 @@ class BirdsEyeSearch:
 
     def _min_separation_m(self, experience_map) -> float:
         if self._separation_m is None:
-            import json
-
             self._separation_m = float(json.loads(experience_map.params_json())["min_loop_separation_m"])
         return self._separation_m
 
