@@ -14,6 +14,7 @@ PACKAGE = PROJECT_ROOT / "python" / "hippo_nav"
 LAYERS = [
     {"_core"},
     {"_defaults", "geometry", "io", "workers"},
+    {"plugs"},
     {"datasets", "engine", "map", "memory", "metrics", "theory"},
     {"vo", "view_cells", "closure", "synthetic"},
     {"pipeline"},

@@ -15,6 +15,7 @@ sequence 06, 51 stereo pairs) when ../shared/data is present, the synthetic demo
 from __future__ import annotations
 
 import pytest
+from hippo_nav.closure import DEFAULT_PROPOSERS
 from hippo_nav.datasets import KittiOdometry
 from hippo_nav.pipeline import Pipeline, config_from_dict
 from hippo_nav.synthetic import DEMO_SEQUENCE, demo_sequence
@@ -144,4 +145,5 @@ def test_pipeline_birdseye_out_and_back(benchmark):
     benchmark.group = "pipeline with bird's-eye closures"
     data = route.out_and_back_street()
     data.name = "out-and-back street with posts, bird's-eye closures (baseline: off)"
-    _bench(benchmark, data, {"closure": {"birdseye": True}}, {"closure": {"birdseye": False}})
+    on = {"parts": {"closure": [*DEFAULT_PROPOSERS, "birdseye"]}}
+    _bench(benchmark, data, on, {"parts": {"closure": list(DEFAULT_PROPOSERS)}})

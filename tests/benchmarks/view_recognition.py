@@ -16,7 +16,7 @@ order (its cells are the current passage), then the second (the first pass's cel
   would predict) is accepted, and the largest position (m) and heading (°) errors of the accepted
   measurements against the ground truth.
 - **proximity: closed**: the share of second-pass frames, recognised or not, whose measurement against that
-  keyframe is accepted at the proximity bar (`closure.proximity_min_inliers`: the map's loop gate proposes
+  keyframe is accepted at the proximity bar (`closure.proximity.min_inliers`: the map's loop gate proposes
   the vertex nearest to where the odometry puts the agent, docs/map.md), and the largest errors.
 
 Writes `view_recognition.md` and `view_recognition.json` under `--out` (renders are kept there and reused).
@@ -103,7 +103,7 @@ def closures(frames, street, claims, calibration, proximity: bool = False) -> li
             rows.append({"closed": False})
             continue
         current = n_first + k
-        bar = config.proximity_min_inliers if proximity else None
+        bar = config.section("proximity").min_inliers if proximity else None
         measurement, why = measurer.measure(keyframe(place), keyframe(current), bar)
         if measurement is None:
             rows.append({"closed": False, "why": why})

@@ -94,7 +94,9 @@ def test_a_revisit_the_view_cells_miss_is_closed_by_proximity(demo, tmp_path):
     blind = {**QUIET, "view_words": {"min_inliers": 20000}}
     results = {}
     for proximity in (False, True):
-        config = config_from_dict({**blind, "closure": {"proximity": proximity}})
+        config = config_from_dict(
+            {**blind, "parts": {"closure": ["view_cell", "proximity"] if proximity else ["view_cell"]}}
+        )
         replay = _replay(tmp_path, demo, drifted, f"odometry_{proximity}.txt")
         results[proximity] = Pipeline(demo, config, odometry=replay).run(None)
     without, with_proximity = results[False].metrics, results[True].metrics
@@ -130,10 +132,10 @@ def test_a_wrong_proximity_measurement_is_refused_when_its_neighbour_disagrees(d
     # wrong closures are accepted; confirmed, the neighbour's disagreement refuses every one.
     truth = demo.ground_truth()
     drifted = drifting_odometry(truth, scale_error=0.01, yaw_bias_deg_per_frame=0.05)
-    monkeypatch.setattr(LoopMeasurer, "measure", _moved_3m_forward_at(lambda c: c.proximity_min_inliers))
+    monkeypatch.setattr(LoopMeasurer, "measure", _moved_3m_forward_at(lambda c: c.proximity.min_inliers))
     metrics = {}
     for confirm in (False, True):
-        closure = {"proximity": True, "proximity_confirm": confirm}
+        closure = {"proximity": {"confirm": confirm}}
         config = config_from_dict({**QUIET, "view_words": {"min_inliers": 20000}, "closure": closure})
         replay = _replay(tmp_path, demo, drifted, f"odometry_{confirm}.txt")
         metrics[confirm] = Pipeline(demo, config, odometry=replay).run(None).metrics
@@ -148,12 +150,12 @@ def test_a_wrong_proximity_measurement_is_refused_when_its_neighbour_disagrees(d
 def test_proximity_reaches_a_revisit_the_odometry_put_far_off(demo, tmp_path):
     # An odometry 2 % long that turns 0.1° a frame puts the demo's second lap 2-9 m from the first, beyond
     # the proximity radius (1 m here), so only the ring that grows with the travel since the last closure
-    # (`proximity_radius_per_m`: 20 m after the first lap) can reach the revisit.
+    # (`closure.proximity.radius_per_m`: 20 m after the first lap) can reach the revisit.
     truth = demo.ground_truth()
     drifted = drifting_odometry(truth, scale_error=0.02, yaw_bias_deg_per_frame=0.1)
     metrics = {}
     for per_m in (0.0, 0.1):
-        closure = {"proximity_radius_m": 1.0, "proximity_radius_per_m": per_m}
+        closure = {"proximity": {"radius_m": 1.0, "radius_per_m": per_m}}
         config = config_from_dict({**QUIET, "view_words": {"min_inliers": 20000}, "closure": closure})
         replay = _replay(tmp_path, demo, drifted, f"odometry_{per_m}.txt")
         metrics[per_m] = Pipeline(demo, config, odometry=replay).run(None).metrics
@@ -168,8 +170,10 @@ def _view_cells_only(confirmed_bar: int, **closure) -> dict:
     # Closures from familiar views alone (no proximity), none of which reaches the view cells' own bar of
     # 1000 inliers: a view cell's measurement is proposed only through a confirming neighbour, at or above
     # `confirmed_bar` (1000: never).
-    settings = {"proximity": False, "min_inliers": 1000, "view_cell_confirmed_min_inliers": confirmed_bar}
-    return config_from_dict({**QUIET, "closure": {**settings, **closure}})
+    settings = {"min_inliers": 1000, "view_cell": {"confirmed_min_inliers": confirmed_bar}}
+    return config_from_dict(
+        {**QUIET, "parts": {"closure": ["view_cell"]}, "closure": {**settings, **closure}}
+    )
 
 
 def test_a_familiar_view_below_the_bar_closes_when_a_neighbour_confirms_it(demo, tmp_path):
@@ -196,7 +200,7 @@ def test_a_wrong_familiar_view_measurement_below_the_bar_is_refused(demo, tmp_pa
     # and no closure is proposed.
     truth = demo.ground_truth()
     drifted = drifting_odometry(truth, scale_error=0.01, yaw_bias_deg_per_frame=0.05)
-    bar_of = lambda c: c.view_cell_confirmed_min_inliers
+    bar_of = lambda c: c.view_cell.confirmed_min_inliers
     monkeypatch.setattr(LoopMeasurer, "measure", _moved_3m_forward_at(bar_of))
     replay = _replay(tmp_path, demo, drifted)
     metrics = Pipeline(demo, _view_cells_only(15), odometry=replay).run(None).metrics
@@ -206,15 +210,15 @@ def test_a_wrong_familiar_view_measurement_below_the_bar_is_refused(demo, tmp_pa
 
 
 def test_proximity_is_not_tried_beyond_its_radius(demo, tmp_path):
-    # Where the odometry puts no gated vertex within `proximity_radius_m` (and the ring beyond it is off:
-    # `proximity_radius_per_m` 0), nothing is measured (the cost
+    # Where the odometry puts no gated vertex within `closure.proximity.radius_m` (and the ring beyond it is
+    # off: `radius_per_m` 0), nothing is measured (the cost
     # guard: before a loop closes, the gate holds vertices tens of metres away). The only notes left are
     # the view cells' own: a familiar cell of the passage the agent is on has no candidate.
     config = config_from_dict(
         {
             **QUIET,
             "view_words": {"min_inliers": 20000},
-            "closure": {"proximity": True, "proximity_radius_m": 0.05, "proximity_radius_per_m": 0.0},
+            "closure": {"proximity": {"radius_m": 0.05, "radius_per_m": 0.0}},
         }
     )
     metrics = Pipeline(demo, config).run(None).metrics

@@ -11,8 +11,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from hippo_nav.closure import ClosureConfig, KeyframeExtractor
+from hippo_nav.closure import DEFAULT_PROPOSERS, ClosureConfig, KeyframeExtractor
 from hippo_nav.closure.birdseye import (
+    BirdsEyeConfig,
     Submap,
     register,
     self_similarity,
@@ -65,9 +66,8 @@ def out_and_back() -> KittiOdometry:
 @pytest.fixture(scope="module")
 def structure(out_and_back):
     """Every frame's structure points and its ground-truth planar pose and path length."""
-    cfg = ClosureConfig()
-    extract = KeyframeExtractor(out_and_back.calibration, cfg)
-    points = [structure_points(extract(f.left, f.right).points_m, cfg) for f in out_and_back]
+    extract = KeyframeExtractor(out_and_back.calibration, ClosureConfig())
+    points = [structure_points(extract(f.left, f.right).points_m, BirdsEyeConfig()) for f in out_and_back]
     planar = planar_from_pose(out_and_back.ground_truth())
     path_m = np.r_[0.0, np.cumsum(np.hypot(*np.diff(planar[:, :2], axis=0).T))]
     return points, planar, path_m
@@ -88,11 +88,11 @@ def _frame_near(planar: np.ndarray, xy: tuple[float, float], heading_rad: float)
 
 def test_a_street_driven_back_the_other_way_registers_with_the_right_relative_pose(structure):
     _, planar, _ = structure
-    cfg = ClosureConfig()
+    cfg = BirdsEyeConfig()
     query_at = _frame_near(planar, (30.0, 3.0), np.pi)  # on the way back west, 15 m past the corner
     target_at = _frame_near(planar, (30.0, 0.0), 0.0)  # the same place on the way out, heading east
-    query = _submap(structure, query_at, -cfg.birdseye_submap_m, 0.0)
-    target = _submap(structure, target_at, -cfg.birdseye_submap_m / 2, cfg.birdseye_submap_m / 2)
+    query = _submap(structure, query_at, -cfg.submap_m, 0.0)
+    target = _submap(structure, target_at, -cfg.submap_m / 2, cfg.submap_m / 2)
     truth = se2_between(planar[target_at], planar[query_at])
     assert abs(abs(truth[2]) - np.pi) < 0.1  # the two frames face opposite ways
     # The odometry's prediction, 6 m and 0.2 rad off, inside a gate of 20 m and 1 rad.
@@ -114,9 +114,9 @@ def test_a_street_driven_back_the_other_way_registers_with_the_right_relative_po
 
 def test_a_look_alike_street_elsewhere_is_refused(structure):
     _, planar, _ = structure
-    cfg = ClosureConfig()
+    cfg = BirdsEyeConfig()
     query_at = _frame_near(planar, (30.0, 3.0), np.pi)
-    query = _submap(structure, query_at, -cfg.birdseye_submap_m, 0.0)
+    query = _submap(structure, query_at, -cfg.submap_m, 0.0)
 
     # A straight street of walls alone (two noisy lines 14 m apart, as stereo sees them) slides along itself;
     # the first street with its posts does not slide.
@@ -142,7 +142,7 @@ def test_a_look_alike_street_elsewhere_is_refused(structure):
     # The corner seen from the way out, placed by the odometry 60 m from where it is: the gate keeps the
     # search away from the true alignment, and what is left does not fit.
     target_at = _frame_near(planar, (30.0, 0.0), 0.0)
-    target = _submap(structure, target_at, -cfg.birdseye_submap_m / 2, cfg.birdseye_submap_m / 2)
+    target = _submap(structure, target_at, -cfg.submap_m / 2, cfg.submap_m / 2)
     truth = se2_between(planar[target_at], planar[query_at])
     far = (truth + np.array([60.0, 0.0, 0.0]), 20.0, 0.35)
     registration, _ = register(query, target, cfg, far)
@@ -150,11 +150,11 @@ def test_a_look_alike_street_elsewhere_is_refused(structure):
 
 
 def test_a_submap_with_too_few_points_never_proposes(structure):
-    cfg = ClosureConfig()
+    cfg = BirdsEyeConfig()
     _, planar, _ = structure
     query_at = _frame_near(planar, (30.0, 3.0), np.pi)
-    query = _submap(structure, query_at, -cfg.birdseye_submap_m, 0.0)
-    sparse = Submap(query.points_m[: cfg.birdseye_min_points - 1], query.radius_m)
+    query = _submap(structure, query_at, -cfg.submap_m, 0.0)
+    sparse = Submap(query.points_m[: cfg.min_points - 1], query.radius_m)
     assert register(sparse, query, cfg) == (None, "birdseye_few_points")
     assert register(query, sparse, cfg) == (None, "birdseye_few_points")
     empty = Submap(np.zeros((0, 2), np.float32), 30.0)
@@ -170,7 +170,8 @@ def test_the_pipeline_closes_the_reverse_revisit(out_and_back, tmp_path):
     base = {"output": {"figures": False, "save_map": False}}
     results = {}
     for on in (False, True):
-        config = config_from_dict({**base, "closure": {"birdseye": on}})
+        chain = [*DEFAULT_PROPOSERS, "birdseye"] if on else list(DEFAULT_PROPOSERS)
+        config = config_from_dict({**base, "parts": {"closure": chain}})
         results[on] = Pipeline(out_and_back, config, odometry=ReplayOdometry(path, out_and_back)).run(None)
     metrics = {on: r.metrics for on, r in results.items()}
     notes = metrics[True]["closure_attempts"]
@@ -207,11 +208,11 @@ def test_walls_weigh_little_and_posts_and_corners_fully() -> None:
 def test_a_place_that_repeats_within_the_search_is_refused(structure):
     # The search covers everywhere the odometry may have put the agent: a place found twice there is no place.
     _, planar, _ = structure
-    cfg = ClosureConfig()
+    cfg = BirdsEyeConfig()
     query_at = _frame_near(planar, (30.0, 3.0), np.pi)
     target_at = _frame_near(planar, (30.0, 0.0), 0.0)
-    query = _submap(structure, query_at, -cfg.birdseye_submap_m, 0.0)
-    target = _submap(structure, target_at, -cfg.birdseye_submap_m / 2, cfg.birdseye_submap_m / 2)
+    query = _submap(structure, query_at, -cfg.submap_m, 0.0)
+    target = _submap(structure, target_at, -cfg.submap_m / 2, cfg.submap_m / 2)
     truth = se2_between(planar[target_at], planar[query_at])
     prior = (truth, 80.0, 0.35)
     once = Submap(target.points_m, 100.0)
@@ -230,7 +231,10 @@ def test_a_failing_birdseye_attempt_costs_its_closure_not_the_run(out_and_back, 
 
     monkeypatch.setattr(BirdsEyeSearch, "propose", broken)
     config = config_from_dict(
-        {"output": {"figures": False, "save_map": False}, "closure": {"birdseye": True}}
+        {
+            "output": {"figures": False, "save_map": False},
+            "parts": {"closure": [*DEFAULT_PROPOSERS, "birdseye"]},
+        }
     )
     with caplog.at_level("WARNING", logger="hippo_nav.pipeline"):
         result = Pipeline(out_and_back, config).run(None)

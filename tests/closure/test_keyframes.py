@@ -118,17 +118,17 @@ def test_the_default_sift_keyframes_measure_revisits_under_strong_change_that_or
 
 def test_a_map_continued_with_another_descriptor_is_refused_clearly() -> None:
     from hippo_nav._core import HippoNavError
-    from hippo_nav.closure import ViewCellPnpClosure
+    from hippo_nav.closure import KeyframeStore
 
     dataset = KittiOdometry(demo_sequence(), DEMO_SEQUENCE)
-    orb = ViewCellPnpClosure(dataset.calibration, ClosureConfig(descriptor="orb"))
+    orb = KeyframeStore(dataset.calibration, ClosureConfig(descriptor="orb"))
     frame = dataset[10]
     orb.keyframes[0] = orb.extract(frame.left, frame.right)
-    saved = orb.export_keyframes()
+    saved = orb.export_state()
     assert saved["descriptors"].shape[1] == 32
-    sift = ViewCellPnpClosure(dataset.calibration, ClosureConfig(descriptor="sift"))
+    sift = KeyframeStore(dataset.calibration, ClosureConfig(descriptor="sift"))
     with pytest.raises(HippoNavError, match="continue a map with the descriptor it was made with"):
-        sift.restore_keyframes(saved)
-    restored = ViewCellPnpClosure(dataset.calibration, ClosureConfig(descriptor="orb"))
-    restored.restore_keyframes(saved)
+        sift.restore_state(saved)
+    restored = KeyframeStore(dataset.calibration, ClosureConfig(descriptor="orb"))
+    restored.restore_state(saved)
     np.testing.assert_array_equal(restored.keyframes[0].descriptors, orb.keyframes[0].descriptors)

@@ -7,6 +7,7 @@ from __future__ import annotations
 import re
 
 from conftest import PROJECT_ROOT
+from hippo_nav.closure import ClosureConfig
 from hippo_nav.map import MapParams
 from hippo_nav.pipeline import PipelineConfig
 
@@ -17,14 +18,23 @@ ELSEWHERE = {"engine", "vo", "views", "map"}
 
 def _table_rows(page: str) -> dict[str, str]:
     text = (PROJECT_ROOT / "docs" / page).read_text()
-    return {m.group(1): m.group(0) for m in re.finditer(r"^\| `(\w+)` \|.*$", text, re.MULTILINE)}
+    return {m.group(1): m.group(0) for m in re.finditer(r"^\| `([\w.]+)` \|.*$", text, re.MULTILINE)}
+
+
+def _sections() -> dict[str, object]:
+    """Every section of the config: its fields, the registered parts' sections (derived from the registries)
+    and the closure proposers' nested ones."""
+    sections: dict[str, object] = {k: f.annotation for k, f in PipelineConfig.model_fields.items()}
+    sections.update(PipelineConfig.part_sections())
+    sections.update({f"closure.{k}": m for k, m in ClosureConfig.part_sections().items()})
+    return sections
 
 
 def test_every_config_section_and_field_is_in_the_pipeline_table():
     rows = _table_rows("pipeline.md")
-    for section, field in PipelineConfig.model_fields.items():
+    for section, model in _sections().items():
         assert section in rows, f"docs/pipeline.md: no row for the `{section}` section"
-        fields = getattr(field.annotation, "model_fields", None)
+        fields = getattr(model, "model_fields", None)
         if section in ELSEWHERE or fields is None:
             continue
         missing = [name for name in fields if f"`{name}`" not in rows[section]]

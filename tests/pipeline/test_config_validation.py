@@ -19,6 +19,7 @@ from conftest import PROJECT_ROOT
 from hippo_nav import HippoNavError, _core
 from hippo_nav.engine import MODULE_NAMES, EngineConfig, GridConfig, SpatialMemory
 from hippo_nav.pipeline import PipelineConfig, config_from_dict
+from hippo_nav.plugs import PartSections
 from pydantic import BaseModel
 from pydantic.fields import FieldInfo
 
@@ -51,6 +52,10 @@ def _leaves(model: type[BaseModel], path: tuple[str, ...] = ()) -> Iterator[tupl
                     )
         elif kind in (bool, int, float):
             yield (*path, key), ".".join((*path, key)), kind
+    # The sections of registered parts (derived from the registries: `vo`, `views`, `closure.proximity`, …).
+    if issubclass(model, PartSections):
+        for name, section in model.part_sections().items():
+            yield from _leaves(section, (*path, name))
 
 
 LEAVES = list(_leaves(PipelineConfig))
@@ -82,6 +87,11 @@ def test_the_walk_finds_every_section():
         "vo.max_features",
     } <= names
     assert {"map.loop_gate_m", "closure.max_distance_m", "view_words.top_k", "seed"} <= names
+    assert {
+        "closure.proximity.min_inliers",
+        "closure.confirm.agreement_m",
+        "closure.birdseye.min_points",
+    } <= names
     assert len(FLOATS) > 80 and len(INTS) > 40
 
 

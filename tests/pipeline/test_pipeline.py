@@ -88,7 +88,7 @@ def test_a_short_run_is_deterministic_and_writes_every_result(demo, tmp_path):
     view_cells, closure = overlapped.system.view_cells, overlapped.system.closure
     assert view_cells.describe_on_worker
     view_cells.describe = on_thread("describe", view_cells.describe)  # type: ignore[method-assign]
-    closure.extract = on_thread("keyframe", closure.extract)  # type: ignore[attr-defined]
+    closure.store.extract = on_thread("keyframe", closure.store.extract)  # type: ignore[method-assign,union-attr]
     first = overlapped.run(tmp_path / "a")
     sequential = config.model_copy(update={"overlap_front_end": False})
     # Frames are loaded ahead on one thread of their own, beside the odometry's: each once, in order (a bag

@@ -333,7 +333,7 @@ def test_the_vo_prior_does_not_extrapolate_over_a_gap(demo):
 def test_a_failing_keyframe_extraction_costs_closures_not_the_run(demo, tmp_path, caplog, overlap):
     """A vertex's keyframe is extracted beside the next frame's odometry (or inline without the overlap);
     when extraction raises, the run still finishes and writes everything, and says which vertex lacks it."""
-    from hippo_nav.closure import KeyframeExtractor, ViewCellPnpClosure
+    from hippo_nav.closure import ClosureChain, KeyframeExtractor
 
     real, calls = KeyframeExtractor.__call__, []
 
@@ -353,8 +353,8 @@ def test_a_failing_keyframe_extraction_costs_closures_not_the_run(demo, tmp_path
         KeyframeExtractor.__call__ = real  # type: ignore[method-assign]
     assert not result.interrupted and len(result.record) == 30
     closure = pipeline.system.closure
-    assert isinstance(closure, ViewCellPnpClosure)
-    assert len(closure.keyframes) == result.metrics["keyframes"] == len(calls) - 1 >= 3
+    assert isinstance(closure, ClosureChain)
+    assert len(closure.store.keyframes) == result.metrics["keyframes"] == len(calls) - 1 >= 3
     assert "no stereo keyframe" in caplog.text
     assert (tmp_path / "out" / "metrics.json").is_file()
 

@@ -10,11 +10,13 @@ import numpy as np
 import pytest
 from conftest import QUIET, Frames
 from hippo_nav import HippoNavError
-from hippo_nav.closure import ClosureAttempt, ClosureContext, ViewCellPnpClosure
+from hippo_nav._defaults import ConfigSection
+from hippo_nav.closure import ClosureAttempt, ClosureChain, ClosureContext
 from hippo_nav.pipeline import Pipeline, SlamSystem, config_from_dict, parts
 from hippo_nav.pipeline.assemble import assemble_result
 from hippo_nav.pipeline.results import RunFacts, evaluate
-from hippo_nav.view_cells import TemplateViewCells
+from hippo_nav.plugs import Part
+from hippo_nav.view_cells import TemplateViewCells, TemplateViewConfig
 from hippo_nav.vo import StereoOdometry
 
 N = 30
@@ -45,7 +47,7 @@ def test_the_system_stepped_by_hand_decides_what_the_runner_records(demo, refere
     memory = system.memory
     assert len(memory.experience_map) == reference.metrics["vertices"]
     assert len(memory.view_recall) == reference.metrics["view_cells"]
-    assert isinstance(memory.closure, ViewCellPnpClosure) and memory.closure.stored > 0
+    assert isinstance(memory.closure, ClosureChain) and memory.closure.stored > 0
 
 
 class WorkerDescribedTemplate(TemplateViewCells):
@@ -60,30 +62,24 @@ class WorkerDescribedTemplate(TemplateViewCells):
 
 
 class SilentProposer:
-    """A closure proposer that never proposes (and so keeps nothing)."""
+    """A closure proposer that never proposes."""
 
-    def __init__(self) -> None:
+    def __init__(self, config: ConfigSection) -> None:
         self.frames = 0
 
     def propose(self, context: ClosureContext) -> ClosureAttempt:
         self.frames += 1
         return ClosureAttempt()
 
-    def after_map(self, frame, outcome, experience_map, worker) -> None:
+    def after_map(self, outcome) -> None:
         pass
-
-    def finish(self) -> None:
-        pass
-
-    stored = 0
-    stored_bytes = 0
 
 
 def test_a_view_descriptor_plugs_in_by_a_class_and_a_config_choice(demo, monkeypatch):
     monkeypatch.setitem(
         parts.VIEW_CELLS,
         "worker_template",
-        lambda config, calibration: WorkerDescribedTemplate.for_camera(config.views, calibration),
+        Part(WorkerDescribedTemplate.for_camera, TemplateViewConfig, "views"),
     )
     config = config_from_dict({**QUIET, "parts": {"view_cells": "worker_template"}})
     result = Pipeline(Frames(demo, N), config).run(None)
@@ -98,16 +94,18 @@ def test_a_view_descriptor_plugs_in_by_a_class_and_a_config_choice(demo, monkeyp
 def test_a_closure_proposer_plugs_in_and_the_map_only_closes_what_is_proposed(demo, monkeypatch):
     made: list[SilentProposer] = []
 
-    def silent(config, calibration):
-        made.append(SilentProposer())
+    def silent(config):
+        made.append(SilentProposer(config))
         return made[-1]
 
-    monkeypatch.setitem(parts.CLOSURE_PROPOSERS, "silent", silent)
+    monkeypatch.setitem(parts.CLOSURE_PROPOSERS, "silent", Part(silent, ConfigSection, "silent"))
     data = Frames(demo, 200)
-    config = config_from_dict({**QUIET, "parts": {"closure": "silent"}})
+    config = config_from_dict({**QUIET, "parts": {"closure": ["silent"]}})
     result = Pipeline(data, config).run(None)
     assert made[0].frames == 200  # asked on every frame
-    assert result.metrics["loop_closures"] == 0 and result.metrics["keyframes"] == 0
+    assert result.metrics["loop_closures"] == 0
+    # The store keeps every vertex's keyframe whoever proposes (a later proposer may measure it).
+    assert result.metrics["keyframes"] == result.metrics["vertices"]
     assert result.metrics["familiar_view_frames"] > 0  # there were revisits to close
 
 

@@ -8,8 +8,7 @@ from types import SimpleNamespace
 import cv2
 import numpy as np
 import pytest
-from hippo_nav.closure import ClosureConfig, KeyframeExtractor
-from hippo_nav.closure.proposers import ClosureContext, ViewCellPnpClosure
+from hippo_nav.closure import ClosureConfig, KeyframeExtractor, KeyframeStore
 from hippo_nav.datasets import KittiOdometry, StereoFrame
 from hippo_nav.metrics import relative_errors_kitti
 from hippo_nav.synthetic import DEMO_SEQUENCE, demo_sequence
@@ -248,7 +247,7 @@ def test_real_kitti_01_reads_its_whole_offset_from_every_track_in_the_gate(share
 
 def test_keyframes_take_the_offset_the_odometry_applies(demo):
     """A keyframe made with the odometry's offset of the frame equals one from an extractor made with that
-    offset, and the closure proposer passes the frame's offset (`ClosureContext`) to its extractions."""
+    offset, and the keyframe store applies the frame's offset (`begin_frame`) to its extractions."""
     frame = _right_shifted(demo[5], 1.0)
     config = ClosureConfig()
     fixed = KeyframeExtractor(demo.calibration, config, disparity_offset_px=1.0)(frame.left, frame.right)
@@ -257,27 +256,13 @@ def test_keyframes_take_the_offset_the_odometry_applies(demo):
     np.testing.assert_array_equal(fixed.points_m, given.points_m)
     assert not np.array_equal(plain.points_m, given.points_m)
 
-    proposer = ViewCellPnpClosure(demo.calibration, config)
+    store = KeyframeStore(demo.calibration, config)
     offsets = []
-    proposer.extract = lambda left, right, offset_px=None: offsets.append(offset_px)  # type: ignore[method-assign]
-
-    class EmptyMap:  # a map before its first vertex: nothing to close onto
-        unjoined_from, odometer_m = None, 0.0
-
-        def __len__(self) -> int:
-            return 0
-
-        def loop_candidates(self, vertices, step) -> list:
-            return []
-
-        def vertices_near(self, radius_m, step) -> list:
-            return []
-
-    experience_map = EmptyMap()
-    proposer.propose(ClosureContext(frame, (1.0, 0.0, 0.0), None, experience_map, 0.8))  # type: ignore[arg-type]
+    store.extract = lambda left, right, offset_px=None: offsets.append(offset_px)  # type: ignore[method-assign]
+    store.begin_frame(frame, 0.8)
     outcome = SimpleNamespace(created=True, vertex=0, loop_closure=None)
     worker = SimpleNamespace(submit=lambda work, *args: _done(work(*args)))
-    proposer.after_map(frame, outcome, experience_map, worker)  # type: ignore[arg-type]
+    store.after_map(frame, outcome, worker)  # type: ignore[arg-type]
     assert offsets == [0.8]
 
 

@@ -1,12 +1,16 @@
 """Geometric loop closure: proposed and measured here, accepted or rejected by the experience map.
 
-A closure proposer (`proposers.py`, the plug point) suggests a place the map knows and measures the pose of
-the agent against it; the experience map (Rust, `hippo_nav.map`, docs/map.md) decides whether the closure
-becomes a loop link. The built-in proposer, `ViewCellPnpClosure`, is driven by familiar view cells: it
-keeps a compact stereo keyframe per map vertex (`keyframes.py`: SIFT features, or ORB's, with stereo 3-D
-points) and measures a revisit by PnP of the stored 3-D points in the current image (`measure.py`: matches, PnP
-with RANSAC, `camera_cur_from_camera_key`); a closure is proposed only with enough inliers, its planar part
-and covariance (from the reprojection Jacobian) becoming the loop link.
+A chain of proposers (`chain.ClosureChain`, the config's `parts.closure` in order) suggests places the map
+knows and measures the pose of the agent against them; the experience map (Rust, `hippo_nav.map`,
+docs/map.md) decides whether the first proposal becomes a loop link. Every proposer measures against one
+keyframe store (`store.KeyframeStore`): a compact stereo keyframe per map vertex (`keyframes.py`: SIFT
+features, or ORB's, with stereo 3-D points), a revisit measured by PnP of the stored 3-D points in the current
+image (`measure.py`: matches, PnP with RANSAC, `camera_cur_from_camera_key`); a closure is proposed only with
+enough inliers, its planar part and covariance (from the reprojection Jacobian) becoming the loop link.
+
+The proposers (`PROPOSERS`, one module each, each with its config section `closure.<name>`): `view_cell`
+(familiar views), `proximity` (the vertex where the odometry puts the agent), `relocalisation` (a session
+inside a loaded map), `birdseye` (stereo structure from above, for streets driven the other way).
 
 ```python
 from hippo_nav.closure import ClosureConfig, KeyframeExtractor, LoopMeasurer
@@ -21,25 +25,34 @@ measurement.agent_from_target, measurement.information.shape, why   # ((≈ -2.8
 ```
 """
 
-from hippo_nav.closure.keyframes import ClosureConfig, Keyframe, KeyframeExtractor
-from hippo_nav.closure.measure import LoopMeasurement, LoopMeasurer
-from hippo_nav.closure.proposers import (
+from hippo_nav.closure.base import (
+    NO_ATTEMPT,
     ClosureAttempt,
     ClosureContext,
     ClosureProposer,
     ProposedClosure,
-    ViewCellPnpClosure,
 )
+from hippo_nav.closure.chain import ClosureChain
+from hippo_nav.closure.config import ClosureConfig, ConfirmConfig
+from hippo_nav.closure.keyframes import Keyframe, KeyframeExtractor
+from hippo_nav.closure.measure import LoopMeasurement, LoopMeasurer
+from hippo_nav.closure.registry import DEFAULT_PROPOSERS, PROPOSERS
+from hippo_nav.closure.store import KeyframeStore
 
 __all__ = [
+    "DEFAULT_PROPOSERS",
+    "NO_ATTEMPT",
+    "PROPOSERS",
     "ClosureAttempt",
+    "ClosureChain",
     "ClosureConfig",
     "ClosureContext",
     "ClosureProposer",
+    "ConfirmConfig",
     "Keyframe",
     "KeyframeExtractor",
+    "KeyframeStore",
     "LoopMeasurement",
     "LoopMeasurer",
     "ProposedClosure",
-    "ViewCellPnpClosure",
 ]

@@ -5,30 +5,30 @@ familiar (KITTI 08). Its 3-D structure is the same from either direction, and a 
 place is also described from above (docs/map.md, "Bird's-eye closures"):
 
 - **Structure points.** The stereo points a vertex's keyframe already keeps (`keyframes.py`) that stand above
-  the road (`birdseye_min_height_m` over a road `birdseye_camera_height_m` below the camera) and lie within
-  `birdseye_max_depth_m` (farther stereo depths are metres uncertain), dropped to the plane of the map:
+  the road (`min_height_m` over a road `camera_height_m` below the camera) and lie within
+  `max_depth_m` (farther stereo depths are metres uncertain), dropped to the plane of the map:
   (forward, left) in the vertex's frame. Nothing more is stored per vertex.
 - **Submap.** The structure points of the vertices within a stretch of path, placed by the map's vertex poses
   (locally as good as the odometry) in the frame of one vertex (`Submap`). A stored place uses the vertices
-  `birdseye_submap_m / 2` on either side of it; the query, the newest vertex, the `birdseye_submap_m` behind it.
+  `submap_m / 2` on either side of it; the query, the newest vertex, the `submap_m` behind it.
 - **Weights** (`structure_weights`): each point weighs by how isotropic the structure around it is (the
   structure tensor of the blurred occupancy, least over greatest eigenvalue): a wall's points little, a post's,
   a corner's or a junction's fully, so that what tells stretches of street apart decides the registration.
 - **Search** (`BirdsEyeSearch`): the query is registered at once onto the map's whole structure around where the
-  odometry puts it (`birdseye_search_m`, `birdseye_search_rad`, or the loop gate if smaller): one correlation
+  odometry puts it (`search_m`, `search_rad`, or the loop gate if smaller): one correlation
   per heading over that area, so the peak must stand out from every other place the agent may be, not from a
   few ranked candidates. The place found is then registered again onto the submap of the old vertex nearest to
   it (far from that vertex the old stretch bends with the odometry's drift); that is the measurement.
 - **Self-similarity** (`self_similarity`): a straight street of walls slides along itself, and no registration
-  can place it along its length; such a submap (`birdseye_max_self_similarity`) is not registered at all.
+  can place it along its length; such a submap (`max_self_similarity`) is not registered at all.
 - **Registration** (`register`): an exhaustive rotation search (the headings the loop gate admits, in
   5° steps; every translation at once by FFT cross-correlation of blurred, weighted occupancy images at
   0.5 m) finds the alignment; Gauss–Newton on the target's distance transform refines it,
   and its Hessian gives the information. A registration is refused when the correlation peak is not distinct
-  from the best alignment elsewhere (`birdseye_min_peak_ratio`: a symmetric square or junction), when too few
-  query points land on the target's structure (`birdseye_min_overlap`, `birdseye_min_inliers`), or when the
+  from the best alignment elsewhere (`min_peak_ratio`: a symmetric square or junction), when too few
+  query points land on the target's structure (`min_overlap`, `min_inliers`), or when the
   refined pose is uncertain along some direction (0.3 m).
-- **Confirmation** (`BirdsEyeSearch`, `birdseye_confirm`): a registration is proposed only when an earlier one
+- **Confirmation** (`BirdsEyeSearch`, `confirm`): a registration is proposed only when an earlier one
   from another stretch of path implies the same correction of the map.
 """
 
@@ -41,12 +41,18 @@ from functools import cached_property
 
 import cv2
 import numpy as np
+from pydantic import ConfigDict, Field
 
+from hippo_nav._defaults import ConfigSection
+from hippo_nav.closure.base import NO_ATTEMPT, ClosureAttempt, ClosureContext, ProposedClosure
 from hippo_nav.geometry import se2_between, se2_compose, wrap_angle
+from hippo_nav.map import MapFrameOutcome
 
 log = logging.getLogger("hippo_nav.pipeline")
 
 __all__ = [
+    "BirdsEyeConfig",
+    "BirdsEyeProposer",
     "BirdsEyeRegistration",
     "BirdsEyeSearch",
     "Submap",
@@ -87,15 +93,75 @@ _ELSEWHERE_STEPS = 3
 _WEIGHTED = True
 
 
+class BirdsEyeConfig(ConfigSection):
+    """`closure.birdseye`: bird's-eye submaps and their registration (module doc)."""
+
+    model_config = ConfigDict(frozen=True)
+
+    submap_m: float = Field(
+        40.0, gt=0.0, description="path a submap spans: the query's behind it, a stored place's around it"
+    )
+    radius_m: float = Field(30.0, gt=0.0, description="a submap keeps points this close to its centre")
+    max_depth_m: float = Field(
+        15.0,
+        gt=0.0,
+        description="stereo points deeper than this are left out: a post seen from several vertices smears "
+        "along the line of sight by its depth error (0.3 px of disparity is 0.7 m at 15 m on a 320-px render)",
+    )
+    camera_height_m: float = Field(1.65, gt=0.0, description="the camera's height over the road")
+    min_height_m: float = Field(
+        0.5, description="points lower than this over the road are road, and left out"
+    )
+    spacing_m: float = Field(
+        3.0, gt=0.0, description="travel between bird's-eye attempts (one per new vertex at most)"
+    )
+    search_m: float = Field(
+        40.0,
+        gt=0.0,
+        description="the registration searches the map this far around where the odometry puts the agent (or "
+        "the loop gate, if smaller): the odometry's likely drift between closures, not the gate's bound",
+    )
+    search_rad: float = Field(
+        0.35,
+        gt=0.0,
+        description="… and within this heading of the odometry's (or the loop gate's, if smaller)",
+    )
+    min_points: int = Field(
+        150,
+        ge=10,
+        le=100_000,
+        description="a submap with fewer structure points neither proposes nor is proposed",
+    )
+    min_peak_ratio: float = Field(
+        1.15, ge=1.0, description="the correlation peak over the best alignment elsewhere, at least"
+    )
+    min_inliers: int = Field(150, ge=3, le=100_000, description="fitting query points a registration needs")
+    min_overlap: float = Field(
+        0.5, ge=0.0, le=1.0, description="fitting share of the query points on the shared area, at least"
+    )
+    max_self_similarity: float = Field(
+        1.0,
+        ge=0.0,
+        le=1.0,
+        description="a submap whose structure correlates with itself shifted 5 m more than this slides along "
+        "itself (a straight street of walls) and is not registered",
+    )
+    confirm: bool = Field(
+        True,
+        description="a bird's-eye registration is proposed only when an earlier one, from another stretch of "
+        "path within 30 m of travel, implies the same correction of the map (within 1.5 m and 0.05 rad)",
+    )
+
+
 def structure_points(points_camera_m: np.ndarray, config) -> np.ndarray:
     """(n, 2) float32 planar (forward, left) points of a keyframe's camera-frame stereo points (x right,
-    y down, z forward) that stand above the road and lie within `birdseye_max_depth_m` (module doc)."""
+    y down, z forward) that stand above the road and lie within `max_depth_m` (module doc)."""
     p = np.asarray(points_camera_m, dtype=np.float32).reshape(-1, 3)
     height_m = -p[:, 1]  # above the camera
     keep = (
         (p[:, 2] > 0.5)
-        & (p[:, 2] <= config.birdseye_max_depth_m)
-        & (height_m >= config.birdseye_min_height_m - config.birdseye_camera_height_m)
+        & (p[:, 2] <= config.max_depth_m)
+        & (height_m >= config.min_height_m - config.camera_height_m)
         & (height_m <= _MAX_HEIGHT_M)
     )
     return np.stack([p[keep, 2], -p[keep, 0]], axis=1).astype(np.float32)
@@ -176,7 +242,7 @@ def register(
     target_from_query (x, y, yaw), its radius m, its yaw window rad), the loop gate around where the odometry
     puts the query; the search keeps to it (None: every heading, shifts up to `_MAX_SHIFT_M`)."""
     cfg = config
-    if len(query) < cfg.birdseye_min_points or len(target) < cfg.birdseye_min_points:
+    if len(query) < cfg.min_points or len(target) < cfg.min_points:
         return None, "birdseye_few_points"
     weights_q, weights_t = _weights(query), _weights(target)
     yaw_rad, shift_m, ratio = _coarse(
@@ -189,13 +255,13 @@ def register(
         query_weights=weights_q,
         target_weights=weights_t,
     )
-    if ratio < cfg.birdseye_min_peak_ratio:
+    if ratio < cfg.min_peak_ratio:
         return None, "birdseye_ambiguous"
     fine = _refine(query.points_m, target.points_m, np.array([shift_m[0], shift_m[1], yaw_rad]), cfg)
     if fine is None:
         return None, "birdseye_no_overlap"
     pose, hessian, inliers, overlap, sigma_m = fine
-    if inliers < cfg.birdseye_min_inliers or overlap < cfg.birdseye_min_overlap:
+    if inliers < cfg.min_inliers or overlap < cfg.min_overlap:
         return None, "birdseye_no_overlap"
     try:
         covariance = np.linalg.inv(hessian) * sigma_m**2
@@ -207,8 +273,7 @@ def register(
     # The floor is the submaps' own accuracy, whatever the number of points: a post smears along the line
     # of sight by its stereo depth error, the same way in every point of it (registrations of the 08 render
     # were 0.1-2.3 m off, median 0.4 m).
-    floor_m = max(cfg.sigma_floor_xy_m, _SIGMA_FLOOR_M)
-    floor_rad = max(cfg.sigma_floor_yaw_rad, _SIGMA_FLOOR_RAD)
+    floor_m, floor_rad = _SIGMA_FLOOR_M, _SIGMA_FLOOR_RAD
     covariance = covariance * _COVARIANCE_INFLATION + np.diag([floor_m**2, floor_m**2, floor_rad**2])
     registration = BirdsEyeRegistration(
         (float(pose[0]), float(pose[1]), float(wrap_angle(pose[2]))),
@@ -447,7 +512,7 @@ class BirdsEyeSearch:
     """Bird's-eye closure proposals for a map whose vertices keep stereo keyframes (module doc).
 
     `propose(experience_map, planar_step, keyframe_of)` registers the submap behind the newest vertex against
-    the submaps of gated places, at most once per `birdseye_spacing_m` of travel and once per vertex:
+    the submaps of gated places, at most once per `spacing_m` of travel and once per vertex:
     (target vertex, agent_from_target, information, why) or (None, None, None, why). `keyframe_of(vertex)`
     gives a vertex's keyframe (or None). What it keeps per vertex: its structure points (float32, 8 bytes a
     point; `stored_bytes`) and its submap's ring key once known."""
@@ -485,55 +550,46 @@ class BirdsEyeSearch:
             poses[centre],
             poses[members],
             [self._points(int(u), keyframe_of) for u in members],
-            self.config.birdseye_radius_m,
+            self.config.radius_m,
         )
 
-    def propose(self, experience_map, planar_step, keyframe_of):
+    def propose(self, experience_map, planar_step, keyframe_of, max_distance_m: float):
         cfg = self.config
         none = (None, None, None)
         newest = len(experience_map) - 1
         odometer = experience_map.odometer_m
-        if (
-            newest < 1
-            or newest == self._last_vertex
-            or odometer - self._last_odometer_m < cfg.birdseye_spacing_m
-        ):
+        if newest < 1 or newest == self._last_vertex or odometer - self._last_odometer_m < cfg.spacing_m:
             return (*none, "")
         self._last_vertex, self._last_odometer_m = newest, odometer
         poses = np.asarray(experience_map.poses(), np.float64)
         # Path length along the vertices (a session's jump counts as a long path: no submap spans it).
         path_m = np.r_[0.0, np.cumsum(np.hypot(*np.diff(poses[:, :2], axis=0).T))]
-        query = self._submap(newest, -cfg.birdseye_submap_m, 0.0, poses, path_m, keyframe_of)
-        if len(query) < cfg.birdseye_min_points:
+        query = self._submap(newest, -cfg.submap_m, 0.0, poses, path_m, keyframe_of)
+        if len(query) < cfg.min_points:
             return (*none, "birdseye_few_points")
-        if (
-            cfg.birdseye_max_self_similarity < 1.0
-            and self_similarity(query, cfg) > cfg.birdseye_max_self_similarity
-        ):
+        if cfg.max_self_similarity < 1.0 and self_similarity(query, cfg) > cfg.max_self_similarity:
             return (*none, "birdseye_featureless")
         radius_m, yaw_rad = experience_map.loop_gate()
         # Where the agent may be: the loop gate, but no farther than the odometry's own likely drift
-        # (`birdseye_search_m`): the search is one correlation over that whole area, not a few candidates.
-        search_m = min(radius_m, cfg.birdseye_search_m)
+        # (`search_m`): the search is one correlation over that whole area, not a few candidates.
+        search_m = min(radius_m, cfg.search_m)
         # Structure farther than this from the newest vertex cannot meet the query's at any shift searched.
-        reach_m = search_m + cfg.birdseye_radius_m
+        reach_m = search_m + cfg.radius_m
         here = experience_map.world_from_agent
         if here is None:
             return (*none, "")
         # Old enough: its structure cannot overlap the query's own stretch of path.
-        separation_m = max(
-            self._min_separation_m(experience_map), cfg.birdseye_submap_m + 2 * cfg.birdseye_max_depth_m
-        )
-        near = experience_map.vertices_near(reach_m + cfg.birdseye_max_depth_m, planar_step)
+        separation_m = max(self._min_separation_m(experience_map), cfg.submap_m + 2 * cfg.max_depth_m)
+        near = experience_map.vertices_near(reach_m + cfg.max_depth_m, planar_step)
         old = np.array([v for v in near if path_m[newest] - path_m[v] >= separation_m], np.int64)
         if not len(old):
             return (*none, "birdseye_no_candidate")
         # The map's structure there, in the newest vertex's frame: the identity is where the odometry puts the
         # query, and the registration says how far the map has drifted from it.
         region = submap(poses[newest], poses[old], [self._points(int(u), keyframe_of) for u in old], reach_m)
-        if len(region) < cfg.birdseye_min_points:
+        if len(region) < cfg.min_points:
             return (*none, "birdseye_few_points")
-        prior = (np.zeros(3), search_m, min(yaw_rad, cfg.birdseye_search_rad))
+        prior = (np.zeros(3), search_m, min(yaw_rad, cfg.search_rad))
         yaw_found, shift_found, ratio = _coarse(
             query.points_m,
             region.points_m,
@@ -561,11 +617,11 @@ class BirdsEyeSearch:
             float(distance.min()),
             ratio,
         )
-        if ratio < cfg.birdseye_min_peak_ratio:
+        if ratio < cfg.min_peak_ratio:
             return (*none, "birdseye_ambiguous")
         if distance.min() > _OFF_PATH_M:
             return (*none, "birdseye_off_path")
-        half = 0.5 * cfg.birdseye_submap_m
+        half = 0.5 * cfg.submap_m
         target = self._submap(w, -half, half, poses, path_m, keyframe_of)
         local_prior = (se2_between(poses[w], at), _LOCAL_REACH_M, _LOCAL_REACH_RAD)
         registration, why = register(query, target, cfg, local_prior)
@@ -575,8 +631,8 @@ class BirdsEyeSearch:
         agent_from_target, information = _agent_from_target(
             agent_from_newest, w_from_newest, registration.information
         )
-        # As for every metric closure (`max_distance_m`): a link longer than this joins places, not a place.
-        if np.hypot(agent_from_target[0], agent_from_target[1]) > cfg.max_distance_m:
+        # As for every metric closure (`closure.max_distance_m`): a link longer than this joins places.
+        if np.hypot(agent_from_target[0], agent_from_target[1]) > max_distance_m:
             return (*none, "birdseye_far")
         log.debug(
             "vertex %d: bird's-eye registration onto %d: %s (inliers %d, overlap %.2f, peak ratio %.2f)",
@@ -587,7 +643,7 @@ class BirdsEyeSearch:
             registration.overlap,
             registration.peak_ratio,
         )
-        if cfg.birdseye_confirm and not self._confirmed(odometer, poses[w], agent_from_target, agent):
+        if cfg.confirm and not self._confirmed(odometer, poses[w], agent_from_target, agent):
             return (*none, "birdseye_unconfirmed")
         return w, agent_from_target, information, "measured"
 
@@ -633,3 +689,32 @@ def _agent_from_target(
         jac[:, k] = diff / 1e-6
     covariance = jac @ np.linalg.inv(information) @ jac.T
     return tuple(float(x) for x in value), np.linalg.inv(covariance)
+
+
+class BirdsEyeProposer:
+    """Closures by registering bird's-eye submaps of stereo structure (`"birdseye"`; heading invariant, for
+    streets driven the other way; module doc). A bird's-eye closure recalls no network state: no view is
+    familiar, and on a street driven the other way the stored state holds the opposite heading."""
+
+    def __init__(self, config: BirdsEyeConfig | None = None) -> None:
+        self.config = config if config is not None else BirdsEyeConfig()
+        self.search = BirdsEyeSearch(self.config)
+
+    def propose(self, context: ClosureContext) -> ClosureAttempt:
+        if context.lost or not context.spaced:
+            return NO_ATTEMPT
+        store = context.keyframes
+        try:
+            vertex, agent_from_target, information, why = self.search.propose(
+                context.experience_map, context.planar_step, store.keyframe, store.config.max_distance_m
+            )
+        except Exception as err:  # noqa: BLE001 - a failed registration closes no loop; the run goes on
+            log.warning("frame %s: bird's-eye attempt failed (%s); no closure", context.frame.index, err)
+            return NO_ATTEMPT
+        if vertex is None:
+            return ClosureAttempt(None, why)
+        return ClosureAttempt(ProposedClosure(vertex, agent_from_target, information, "birdseye"), "measured")
+
+    def after_map(self, outcome: MapFrameOutcome) -> None:
+        if outcome.loop_closure is not None:
+            self.search.forget()

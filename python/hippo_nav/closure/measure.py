@@ -31,7 +31,8 @@ import cv2
 import numpy as np
 
 from hippo_nav._core import HippoNavError
-from hippo_nav.closure.keyframes import DESCRIPTOR_BYTES, ClosureConfig, Keyframe
+from hippo_nav.closure.config import ClosureConfig
+from hippo_nav.closure.keyframes import DESCRIPTOR_BYTES, Keyframe
 from hippo_nav.geometry import planar_from_pose, wrap_angle
 
 _GN_ITERATIONS = 10

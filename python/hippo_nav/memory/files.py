@@ -200,6 +200,9 @@ def read_memory(path: str | Path) -> SavedMemory:
 
 # Settings a memory records only since a later version, with the value every memory saved before had.
 _RECORDED_LATER: dict[str, Any] = {"closure.descriptor": "orb"}
+# Settings memories once recorded that what they store does not depend on: the closure's proposers (their
+# chain is `parts.closure`; the keyframes depend only on `closure.descriptor`).
+_NO_LONGER_RECORDED = ("parts.closure",)
 
 
 def _same(a: Any, b: Any) -> bool:
@@ -216,6 +219,8 @@ def check_compatible(memory: SavedMemory, now: dict[str, Any]) -> None:
     settings in `memory.info["depends_on"]` (same flattened names) and its camera; the first difference is
     an error naming the setting, both values and the fix."""
     saved = {**_RECORDED_LATER, **dotted(memory.info.get("depends_on", {}))}
+    for name in _NO_LONGER_RECORDED:
+        saved.pop(name, None)
     current = dotted(now)
     for name in sorted(set(saved) | set(current)):
         a, b = saved.get(name, "<absent>"), current.get(name, "<absent>")

@@ -14,14 +14,15 @@ Sections:
 - `engine`: the spatial-memory network (`hippo_nav.engine.EngineConfig`).
 - `lesions`: "MEC inactivation" of each grid module — the one place lesions are set for a run (the
   engine's `lesioned` list is derived from it).
-- `vo`: the stereo VO (`hippo_nav.vo.VoParams`).
-- `views`: the template view cells (`hippo_nav.view_cells.TemplateViewConfig`; `field_of_view_rad`
-  defaults to the camera's).
-- `view_words`: the word view cells (`hippo_nav.view_cells.WordViewConfig`).
+- one section per registered odometry and view descriptor, derived from their registries
+  (`hippo_nav.plugs.Part.section`): `vo`, the stereo VO (`hippo_nav.vo.VoParams`); `views`, the template
+  view cells (`hippo_nav.view_cells.TemplateViewConfig`; `field_of_view_rad` defaults to the camera's);
+  `view_words`, the word view cells (`hippo_nav.view_cells.WordViewConfig`).
 - `view_search`: which stored views a frame is compared with (`ViewSearchConfig`).
 - `injection`: how familiar views pull the network back (docs/spec.md §7, see `InjectionConfig`).
 - `map`: experience-map creation, loop-closure mode and gates, online correction (`hippo_nav.map.MapParams`).
-- `closure`: geometric loop closure: stereo keyframes and PnP verification (`hippo_nav.closure.ClosureConfig`).
+- `closure`: geometric loop closure: the keyframe store and its PnP measurements, and one nested section per
+  registered proposer (`closure.view_cell`, `closure.proximity`, …; `hippo_nav.closure.ClosureConfig`).
 - `correction`: the final correction run after the last frame (`CorrectionConfig`).
 - `limits`: the motion the engine is given at most; larger VO outputs are clamped (`MotionLimits`).
 - `output`: what is written besides trajectories and metrics (`OutputConfig`).
@@ -30,8 +31,10 @@ Sections:
 from __future__ import annotations
 
 import json
+import logging
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 from pydantic import (
     Field,
@@ -43,13 +46,23 @@ from pydantic import (
 
 from hippo_nav._core import HippoNavError
 from hippo_nav._defaults import ConfigSection
-from hippo_nav.closure import ClosureConfig
+from hippo_nav.closure import DEFAULT_PROPOSERS, PROPOSERS, ClosureConfig
+from hippo_nav.closure.config import migrate_flat_closure
 from hippo_nav.engine import EngineConfig
 from hippo_nav.io.errors import MAX_SETTINGS_FILE_BYTES, read_text
 from hippo_nav.map import ClosureMode, MapParams
-from hippo_nav.pipeline.parts import REGISTRIES
-from hippo_nav.view_cells import TemplateViewConfig, WordViewConfig
-from hippo_nav.vo import VoParams
+from hippo_nav.plugs import Part, PartSections
+from hippo_nav.view_cells import DESCRIPTORS
+from hippo_nav.vo import ODOMETRIES
+
+log = logging.getLogger("hippo_nav.pipeline")
+
+# The registry of each field of the `parts` section.
+_REGISTRIES: dict[str, Mapping[str, Part[Any]]] = {
+    "odometry": ODOMETRIES,
+    "view_cells": DESCRIPTORS,
+    "closure": PROPOSERS,
+}
 
 # Counts of frames, cells or iterations: generous, but an int a C library still takes (and no typo of a few
 # extra digits that would run for days).
@@ -141,24 +154,42 @@ class ViewSearchConfig(_Section):
 
 
 class PartsConfig(_Section):
-    """Which implementation fills each plug point: a name in the registries of `hippo_nav.pipeline.parts`
-    (docs/architecture.md). Each part takes its parameters from its own section (`vo`; `views` for the
-    template view cells, `view_words` for the word view cells; `closure`)."""
+    """Which implementation fills each plug point: a name in its package's registry (`vo.ODOMETRIES`,
+    `view_cells.DESCRIPTORS`, `closure.PROPOSERS`; docs/architecture.md). Each part takes its parameters from
+    its own section (the registry entry's `section`: `vo`; `views` for the template view cells,
+    `view_words` for the word view cells; `closure.<proposer>`)."""
 
-    odometry: str = Field("stereo", description="the odometry (`parts.ODOMETRIES`)")
-    view_cells: str = Field("words", description="the view descriptor (`parts.VIEW_CELLS`)")
-    closure: str = Field(
-        "view_cell_pnp",
-        description="the loop-closure proposer in the map's geometric mode (`parts.CLOSURE_PROPOSERS`)",
+    odometry: str = Field("stereo", description="the odometry (`vo.ODOMETRIES`)")
+    view_cells: str = Field("words", description="the view descriptor (`view_cells.DESCRIPTORS`)")
+    closure: list[str] = Field(
+        default_factory=lambda: list(DEFAULT_PROPOSERS),
+        description="the loop-closure proposers in the map's geometric mode, asked in this order "
+        '(`closure.PROPOSERS`; add "birdseye" for streets driven the other way)',
     )
 
-    @field_validator("odometry", "view_cells", "closure")
+    @field_validator("odometry", "view_cells")
     @classmethod
     def _registered(cls, name: str, info: ValidationInfo) -> str:
-        registry = REGISTRIES[str(info.field_name)]
+        _check_registered(str(info.field_name), [name])
+        return name
+
+    @field_validator("closure")
+    @classmethod
+    def _proposers_registered(cls, names: list[str]) -> list[str]:
+        _check_registered("closure", names)
+        twice = sorted({n for n in names if names.count(n) > 1})
+        if twice:
+            raise ValueError(
+                f"{', '.join(map(repr, twice))} listed twice; each proposer is asked once a frame"
+            )
+        return names
+
+
+def _check_registered(plug: str, names: list[str]) -> None:
+    registry = _REGISTRIES[plug]
+    for name in names:
         if name not in registry:
             raise ValueError(f"unknown {name!r}; choose from {', '.join(sorted(registry))}")
-        return name
 
 
 class CorrectionConfig(_Section):
@@ -208,8 +239,19 @@ class OutputConfig(_Section):
     )
 
 
-class PipelineConfig(_Section):
-    """Everything a run needs besides its input."""
+def _odometries() -> Mapping[str, Part[Any]]:
+    return ODOMETRIES
+
+
+def _descriptors() -> Mapping[str, Part[Any]]:
+    return DESCRIPTORS
+
+
+class PipelineConfig(PartSections):
+    """Everything a run needs besides its input. The sections of the registered odometries and view
+    descriptors (`vo`, `views`, `view_words`, and any registered since) are derived from their registries."""
+
+    registries: ClassVar = (_odometries, _descriptors)
 
     seed: int = Field(0, ge=0, le=2**31 - 1, description="one seed for every random choice of the run")
     overlap_front_end: bool = Field(
@@ -220,9 +262,6 @@ class PipelineConfig(_Section):
     parts: PartsConfig = Field(default_factory=PartsConfig)
     engine: EngineConfig = Field(default_factory=EngineConfig)
     lesions: LesionConfig = Field(default_factory=LesionConfig)
-    vo: VoParams = Field(default_factory=VoParams)
-    views: TemplateViewConfig = Field(default_factory=TemplateViewConfig)
-    view_words: WordViewConfig = Field(default_factory=WordViewConfig)
     view_search: ViewSearchConfig = Field(default_factory=ViewSearchConfig)
     injection: InjectionConfig = Field(default_factory=InjectionConfig)
     map: MapParams = Field(default_factory=MapParams)
@@ -231,15 +270,43 @@ class PipelineConfig(_Section):
     limits: MotionLimits = Field(default_factory=MotionLimits)
     output: OutputConfig = Field(default_factory=OutputConfig)
 
+    @model_validator(mode="before")
+    @classmethod
+    def _read_flat_closure_keys(cls, data: Any) -> Any:
+        """Configs written before the closure proposers had sections of their own (module doc of
+        `hippo_nav.closure.config`) are read as they meant, with a warning naming each key's new place."""
+        if not isinstance(data, dict):
+            return data
+        parts, closure = data.get("parts", {}), data.get("closure", {})
+        if not isinstance(parts, dict) or not isinstance(closure, dict):
+            return data
+        proposers = parts.get("closure", list(DEFAULT_PROPOSERS))
+        if proposers == "view_cell_pnp":  # the one proposer of then, which did all of these
+            proposers = list(DEFAULT_PROPOSERS)
+        if not isinstance(proposers, list):
+            return data
+        closure, proposers, moved = migrate_flat_closure(closure, proposers)
+        if not moved and parts.get("closure") == proposers:
+            return data
+        for line in moved:
+            log.warning("config: %s (the old spelling still reads; write the new one)", line)
+        return {**data, "parts": {**parts, "closure": proposers}, "closure": closure}
+
     @model_validator(mode="after")
     def _one_source_per_setting(self) -> PipelineConfig:
-        # One seed for the whole run: the VO's own seed field follows it.
-        if "seed" in self.vo.model_fields_set and self.vo.seed != self.seed:
-            raise ValueError(
-                f"vo.seed ({self.vo.seed}) differs from seed ({self.seed}); set the seed once, at the top level"
-            )
-        if self.vo.seed != self.seed:
-            object.__setattr__(self, "vo", self.vo.model_copy(update={"seed": self.seed}))
+        # One seed for the whole run: a section's own seed field (the VO's) follows it.
+        for name in self.part_sections():
+            section = self.section(name)
+            seed = getattr(section, "seed", None) if "seed" in type(section).model_fields else None
+            if seed is None:
+                continue
+            if "seed" in section.model_fields_set and seed != self.seed:
+                raise ValueError(
+                    f"{name}.seed ({seed}) differs from seed ({self.seed}); set the seed once, at the top level"
+                )
+            if seed != self.seed:
+                assert self.__pydantic_extra__ is not None
+                self.__pydantic_extra__[name] = section.model_copy(update={"seed": self.seed})
         # A measured placement needs measured closures: the RatSLAM closure mode has none.
         if self.map.closure != ClosureMode.GEOMETRIC and self.injection.placement == "measured":
             if "placement" in self.injection.model_fields_set:

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from hippo_nav._core import HippoNavError
-from hippo_nav.closure import ClosureProposer
+from hippo_nav.closure import ClosureChain
 from hippo_nav.datasets.base import DatasetExtras, StereoDataset
 from hippo_nav.io import DatasetError
 from hippo_nav.memory import SavedMemory, read_memory
@@ -46,6 +46,7 @@ from hippo_nav.pipeline.records import RunRecord, RunRecorder, RunResult, StageT
 from hippo_nav.pipeline.results import RunFacts
 from hippo_nav.pipeline.system import SlamSystem
 from hippo_nav.view_cells import ViewDescriptor
+from hippo_nav.vo import VoParams
 from hippo_nav.vo.disparity import LIMIT_PX as DISPARITY_LIMIT_PX
 from hippo_nav.vo.replay import frame_interval_s
 
@@ -59,7 +60,7 @@ class Pipeline:
 
     `dataset` follows `hippo_nav.datasets.StereoDataset`. `progress` shows a tqdm bar with the frame rate
     and the map size. `odometry`, `view_cells` and `closure` replace the parts the config's `parts` section
-    names (`frontend.Odometry`, `view_cells.ViewDescriptor`, `closure.ClosureProposer`); `observers` watch
+    names (`frontend.Odometry`, `view_cells.ViewDescriptor`, `closure.ClosureChain`); `observers` watch
     the run frame by frame (`observers.Observer`); `memory` (`hippo_nav.memory.read_memory`) starts the run
     as a new session inside an earlier run's map. `system` is the per-frame system; `odometry` the
     odometry; `record` what has been recorded so far.
@@ -73,7 +74,7 @@ class Pipeline:
         *,
         odometry: Odometry | None = None,
         view_cells: ViewDescriptor | None = None,
-        closure: ClosureProposer | None = None,
+        closure: ClosureChain | None = None,
         observers: Sequence[Observer] = (),
         memory: SavedMemory | None = None,
     ) -> None:
@@ -436,13 +437,14 @@ def _with_saved_rig(config: PipelineConfig, memory: SavedMemory | None) -> Pipel
     """The config whose VO starts from the disparity offset a saved memory's run ended with (the same rig,
     calibrated by that run's self-calibration), unless this run sets `vo.disparity_offset_px` itself."""
     saved = None if memory is None else (memory.info.get("odometry") or {}).get("disparity_offset_px")
-    if saved is None or "disparity_offset_px" in config.vo.model_fields_set:
+    vo = config.typed_section("vo", VoParams)
+    if saved is None or "disparity_offset_px" in vo.model_fields_set:
         return config
     if not (isinstance(saved, (int, float)) and np.isfinite(saved) and abs(saved) <= DISPARITY_LIMIT_PX):
         log.warning("the saved memory's disparity offset %r is not usable; starting from the config's", saved)
         return config
     log.info("the stereo VO starts from the saved run's disparity offset, %+.2f px", saved)
-    vo = config.vo.model_copy(update={"disparity_offset_px": float(saved)})
+    vo = vo.model_copy(update={"disparity_offset_px": float(saved)})
     return config.model_copy(update={"vo": vo})
 
 

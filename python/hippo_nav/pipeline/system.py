@@ -21,14 +21,15 @@ and writes results. Per frame, in this order (docs/pipeline.md):
    vertices (pure odometry links) and loop links and corrects the map online. Each frame keeps its offset
    from its vertex, so after the final correction every frame gets a corrected pose (vertex ∘ offset).
 
-Which descriptor fills the view cells and which proposer closes loops is the config's `parts` section
+Which descriptor fills the view cells and which proposers close loops is the config's `parts` section
 (`parts.py`). Everything a run learns that could outlive it — the experience map, the view cells with the
-network states they recall, the closure proposer's keyframes — is `SlamSystem.memory`.
+network states they recall, the closure's keyframes — is `SlamSystem.memory`; each part that keeps state is
+`Persistent` (`hippo_nav.plugs`: what it depends on, export, restore).
 
 A system can start inside what an earlier run learnt (`memory=read_memory(path)`, docs/memory.md): with
 `resume=True` it continues exactly where that run stopped (the next frames give the same records as if it had
 never stopped); otherwise it starts a new session in the loaded map, lost until a familiar view is confirmed by
-the closure measurement (`ViewCellPnpClosure`, "Relocalisation"): the map then joins the session's own part to
+the closure measurement (the `relocalisation` proposer, `hippo_nav.closure.relocalisation`): the map then joins the session's own part to
 the loaded one, and the networks are set from the recognised view's stored state (`relocalisation` says when
 and where). `save_memory()` gives what a later run needs.
 
@@ -46,8 +47,7 @@ from typing import Any
 import numpy as np
 
 from hippo_nav._core import HippoNavError
-from hippo_nav.closure import ClosureContext, ClosureProposer
-from hippo_nav.closure.proposers import NO_ATTEMPT
+from hippo_nav.closure import NO_ATTEMPT, ClosureChain
 from hippo_nav.datasets.base import StereoCalibration, StereoFrame
 from hippo_nav.engine import SpatialMemory, SpatialReadout
 from hippo_nav.geometry import planar_from_pose, planar_step, se2_between, se2_compose
@@ -57,6 +57,7 @@ from hippo_nav.pipeline import parts
 from hippo_nav.pipeline.config import PipelineConfig
 from hippo_nav.pipeline.policies import MotionLimiter, ViewRecall
 from hippo_nav.pipeline.records import FrameRecord, StageTimer
+from hippo_nav.plugs import Persistent
 from hippo_nav.view_cells import NO_VIEW_CELL, ViewDescriptor
 from hippo_nav.workers import INLINE, Worker
 
@@ -79,9 +80,7 @@ class Memory:
 
     experience_map: ExperienceMap
     view_recall: ViewRecall  # the view cells and the network states they recall
-    closure: (
-        ClosureProposer | None
-    )  # what closures onto known vertices need (keyframes); None in RatSLAM mode
+    closure: ClosureChain | None  # what closures onto known vertices need (keyframes); None in RatSLAM mode
 
 
 class SlamSystem:
@@ -98,7 +97,7 @@ class SlamSystem:
         config: PipelineConfig | None = None,
         *,
         view_cells: ViewDescriptor | None = None,
-        closure: ClosureProposer | None = None,
+        closure: ClosureChain | None = None,
         stride: int = 1,
         memory: SavedMemory | None = None,
         resume: bool = False,
@@ -125,9 +124,7 @@ class SlamSystem:
             torus_period_m=self.config.engine.torus_period_m,
         )
         self.map = new_experience_map(self.config.map)
-        self.closure = (
-            closure if closure is not None else parts.make_closure_proposer(self.config, calibration)
-        )
+        self.closure = closure if closure is not None else parts.make_closure(self.config, calibration)
         self.stride = max(int(stride), 1)
         self.limits = MotionLimiter(self.config.limits, self.stride)
         self.frames = 0  # frames processed
@@ -199,9 +196,7 @@ class SlamSystem:
                 if obs.status == "familiar" and cell is not None
                 else None
             )
-            attempt = self.closure.propose(
-                ClosureContext(frame, planar_step_map, anchor, self.map, disparity_offset_px)
-            )
+            attempt = self.closure.propose(frame, planar_step_map, anchor, self.map, disparity_offset_px)
         timer.lap("closure")
 
         # 4. Spatial memory integrates the motion, with what a familiar view recalls; a new view cell then
@@ -300,24 +295,15 @@ class SlamSystem:
 
     # ----------------------------------------------------------------------------------------------
     def depends_on(self) -> dict[str, Any]:
-        """The settings what this system stores depends on (a memory made with others is refused)."""
+        """The settings what this system stores depends on (a memory made with others is refused): each
+        persistent part's own (`Persistent.depends_on`), the networks', the map's and the camera's."""
         cfg = json.loads(self.config.model_dump_json(by_alias=True))
-        kind = cfg["parts"]["view_cells"]
-        descriptor = {
-            "words": {k: cfg["view_words"][k] for k in ("max_width_px", "orb_features", "orb_levels")},
-            "template": {
-                k: cfg["views"][k] for k in ("width_px", "height_px", "crop_rows_frac", "patch_size_px")
-            },
-        }.get(kind, {})
-        vocabulary = getattr(self.view_cells, "vocabulary", None)
-        if vocabulary is not None:
-            descriptor["vocabulary_sha256"] = vocabulary.sha256
         width, height = self.calibration.image_size_px
+        descriptor = self.view_cells
         return {
-            "parts": {"view_cells": kind, "closure": cfg["parts"]["closure"]},
-            "view_cells": descriptor,
-            # The keyframes' descriptors: SIFT's and ORB's cannot be matched with each other.
-            "closure": {"descriptor": cfg["closure"]["descriptor"]},
+            "parts": {"view_cells": cfg["parts"]["view_cells"]},
+            "view_cells": descriptor.depends_on() if isinstance(descriptor, Persistent) else {},
+            "closure": {} if self.closure is None else self.closure.depends_on(),
             "engine": cfg["engine"],
             "lesions": cfg["lesions"],
             "map": cfg["map"],
@@ -331,18 +317,14 @@ class SlamSystem:
     def save_memory(self) -> SavedMemory:
         """What a later run needs to start inside this one's map (docs/memory.md); call after `finish`.
         Raises `HippoNavError` when a part cannot be saved (a custom descriptor or proposer without export)."""
-        export_cells = getattr(self.view_cells, "export_cells", None)
-        if export_cells is None:
+        descriptor = self.view_cells
+        if not isinstance(descriptor, Persistent):
             raise HippoNavError(
-                f"the view cells {type(self.view_cells).__name__} cannot be saved (no export_cells)"
+                f"the view cells {type(descriptor).__name__} cannot be saved (they are not Persistent: "
+                "depends_on, export_state, restore_state)"
             )
-        keyframes: dict[str, np.ndarray] = {}
-        if self.closure is not None:
-            export_keyframes = getattr(self.closure, "export_keyframes", None)
-            if export_keyframes is None:
-                raise HippoNavError(f"the closure proposer {type(self.closure).__name__} cannot be saved")
-            keyframes = export_keyframes()
-        views = {f"cells.{k}": v for k, v in export_cells().items()}
+        keyframes = {} if self.closure is None else self.closure.export_state()
+        views = {f"cells.{k}": v for k, v in descriptor.export_state().items()}
         views.update({f"recall.{k}": v for k, v in self.view_recall.export_state().items()})
         engine = self.engine.state()
         state = {
@@ -385,16 +367,20 @@ class SlamSystem:
             )
         if len(self.view_cells) != 0:
             raise HippoNavError("a memory is loaded into fresh view cells only")
-        restore_cells = getattr(self.view_cells, "restore_cells", None)
-        if restore_cells is None:
-            raise HippoNavError(f"the view cells {type(self.view_cells).__name__} cannot be restored")
-        restore_cells({k[len("cells.") :]: v for k, v in memory.views.items() if k.startswith("cells.")})
+        descriptor = self.view_cells
+        if not isinstance(descriptor, Persistent):
+            raise HippoNavError(
+                f"the view cells {type(descriptor).__name__} cannot be restored (not Persistent)"
+            )
+        descriptor.restore_state(
+            {k[len("cells.") :]: v for k, v in memory.views.items() if k.startswith("cells.")}
+        )
         self.view_recall.restore_state(
             {k[len("recall.") :]: v for k, v in memory.views.items() if k.startswith("recall.")},
             resume=resume,
         )
         if self.closure is not None and len(memory.keyframes):
-            self.closure.restore_keyframes(memory.keyframes)  # type: ignore[attr-defined]
+            self.closure.restore_state(memory.keyframes)
         self.map = ExperienceMap.from_bytes(memory.map_bytes)
         self.loaded = {
             "folder": str(memory.folder) if memory.folder is not None else None,

@@ -19,16 +19,32 @@ again = cells.observe(cells.describe(dataset[0]))           # the same view: fam
 (first.status, first.cell_id), (again.status, again.cell_id)   # (('new', 0), ('familiar', 0))
 ```
 
-Which descriptor a run uses is the config's `parts.view_cells` (`hippo_nav.pipeline.parts`); how a cell's
-stored network state is kept and recalled: `hippo_nav.engine.recall`.
+Which descriptor a run uses is the config's `parts.view_cells`, a name in `DESCRIPTORS`; each descriptor's
+settings are its own config section (`views` for the template, `view_words` for the words). Adding a
+descriptor is its module here and one line in `DESCRIPTORS` (docs/architecture.md). How a cell's stored
+network state is kept and recalled: `hippo_nav.engine.recall`.
 """
 
+from collections.abc import Callable
+from typing import Any
+
+from hippo_nav.datasets.base import StereoCalibration
+from hippo_nav.plugs import Part
 from hippo_nav.view_cells.base import NO_VIEW_CELL, Observation, ViewDescriptor, ViewObservation, ViewStatus
 from hippo_nav.view_cells.template import TemplateViewCells, TemplateViewConfig, field_of_view_rad
 from hippo_nav.view_cells.words import Vocabulary, WordViewCells, WordViewConfig, train_vocabulary
 
+DescriptorFactory = Callable[[Any, StereoCalibration], ViewDescriptor]  # (its section, camera) → descriptor
+
+DESCRIPTORS: dict[str, Part[DescriptorFactory]] = {
+    "template": Part(TemplateViewCells.for_camera, TemplateViewConfig, "views"),
+    "words": Part(WordViewCells.for_camera, WordViewConfig, "view_words"),
+}
+
 __all__ = [
+    "DESCRIPTORS",
     "NO_VIEW_CELL",
+    "DescriptorFactory",
     "Observation",
     "TemplateViewCells",
     "TemplateViewConfig",

@@ -200,14 +200,24 @@ class TemplateViewCells:
         """Every stored template, shape (len, height_px, width_px)."""
         return self._cells.templates()
 
-    def export_cells(self) -> dict[str, np.ndarray]:
+    # Persistent (docs/memory.md): the templates, and the settings that shape them.
+    def depends_on(self) -> dict[str, Any]:
+        cfg = self.config
+        return {
+            "width_px": cfg.width_px,
+            "height_px": cfg.height_px,
+            "crop_rows_frac": list(cfg.crop_rows_frac),
+            "patch_size_px": cfg.patch_size_px,
+        }
+
+    def export_state(self) -> dict[str, np.ndarray]:
         """Every cell's template, for a memory folder."""
         return {"templates": np.asarray(self.templates(), np.float32)}
 
-    def restore_cells(self, saved: dict[str, np.ndarray]) -> None:
-        """Store the templates of `export_cells` (into an empty set of cells), with the same ids."""
+    def restore_state(self, saved: dict[str, np.ndarray]) -> None:
+        """Store the templates of `export_state` (into an empty set of cells), with the same ids."""
         if len(self._cells):
-            raise HippoNavError("restore_cells needs empty view cells")
+            raise HippoNavError("saved view cells are restored into empty view cells only")
         for template in np.asarray(saved["templates"], np.float32):
             self.add(template)
 

@@ -258,7 +258,17 @@ class WordViewCells:
         """Store a view as a new cell without matching; returns its id."""
         return int(self._cells.add(_pixels(view), view.descriptors))
 
-    def export_cells(self) -> dict[str, np.ndarray]:
+    # Persistent (docs/memory.md): every cell's features; they depend on the detector and the vocabulary.
+    def depends_on(self) -> dict[str, Any]:
+        cfg = self.config
+        return {
+            "max_width_px": cfg.max_width_px,
+            "orb_features": cfg.orb_features,
+            "orb_levels": cfg.orb_levels,
+            "vocabulary_sha256": self.vocabulary.sha256,
+        }
+
+    def export_state(self) -> dict[str, np.ndarray]:
         """Every cell's features, for a memory folder: `count` (cells,), `keypoints_px` (Σ count, 2) float32,
         `descriptors` (Σ count, 32) uint8, in cell order. A cell's bag of words is made again from them."""
         features = [self._cells.features(c) for c in range(len(self._cells))]
@@ -268,10 +278,10 @@ class WordViewCells:
             "descriptors": stack_ragged([d for _, d in features], 32, np.uint8),
         }
 
-    def restore_cells(self, saved: dict[str, np.ndarray]) -> None:
-        """Store the cells of `export_cells` (into an empty set of cells), with the same ids."""
+    def restore_state(self, saved: dict[str, np.ndarray]) -> None:
+        """Store the cells of `export_state` (into an empty set of cells), with the same ids."""
         if len(self._cells):
-            raise HippoNavError("restore_cells needs empty view cells")
+            raise HippoNavError("saved view cells are restored into empty view cells only")
         for keypoints, descriptors in split_ragged(
             saved["count"], saved["keypoints_px"], saved["descriptors"]
         ):

@@ -1,0 +1,29 @@
+"""The closure proposers by name: `parts.closure` lists which run, in which order (`chain.py`). Adding a way
+of proposing loops is its module in `closure/` (a config section model and a class with `propose` and
+`after_map`, `base.ClosureProposer`) and one line here; its settings are then `closure.<section>`."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from hippo_nav.closure.base import ClosureProposer
+from hippo_nav.closure.birdseye import BirdsEyeConfig, BirdsEyeProposer
+from hippo_nav.closure.proximity import ProximityConfig, ProximityProposer
+from hippo_nav.closure.relocalisation import RelocalisationConfig, RelocalisationProposer
+from hippo_nav.closure.view_cell import ViewCellConfig, ViewCellProposer
+from hippo_nav.plugs import Part
+
+__all__ = ["DEFAULT_PROPOSERS", "PROPOSERS", "ProposerFactory"]
+
+ProposerFactory = Callable[[Any], ClosureProposer]  # its config section → the proposer
+
+PROPOSERS: dict[str, Part[ProposerFactory]] = {
+    "relocalisation": Part(RelocalisationProposer, RelocalisationConfig, "relocalisation"),
+    "view_cell": Part(ViewCellProposer, ViewCellConfig, "view_cell"),
+    "proximity": Part(ProximityProposer, ProximityConfig, "proximity"),
+    "birdseye": Part(BirdsEyeProposer, BirdsEyeConfig, "birdseye"),
+}
+
+# Bird's-eye closures are off by default for their cost where the map has old places around (docs/results.md).
+DEFAULT_PROPOSERS = ("relocalisation", "view_cell", "proximity")
