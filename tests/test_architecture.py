@@ -17,6 +17,7 @@ LAYERS = [
     {"plugs"},
     {"datasets", "engine", "map", "memory", "metrics", "theory"},
     {"vo", "view_cells", "closure", "synthetic"},
+    {"system"},
     {"pipeline"},
     {"viewer", "sweep"},
     {"report"},

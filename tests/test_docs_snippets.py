@@ -25,7 +25,7 @@ def snippets() -> list:
 @pytest.fixture
 def registries():
     from hippo_nav.datasets import LOADERS
-    from hippo_nav.pipeline import parts
+    from hippo_nav.system import parts
 
     kept = [(registry, dict(registry)) for registry in (LOADERS, *parts.REGISTRIES.values())]
     yield

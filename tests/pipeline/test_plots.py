@@ -22,7 +22,8 @@ from hippo_nav.pipeline.plots import (
     vertex_marker_diameter_pt,
     write_run_figures,
 )
-from hippo_nav.pipeline.records import FrameRecord, RunRecord, RunResult
+from hippo_nav.pipeline.records import RunRecord, RunResult
+from hippo_nav.system.records import FrameRecord
 
 PERIOD_M = 100.0
 KS = (1, 2, 4)

@@ -49,7 +49,7 @@ def test_a_signal_during_the_final_correction_stops_it_and_everything_is_written
     demo, tmp_path, monkeypatch, disposition, signame, code
 ):
     disposition(signame, signal.SIG_DFL if signame != "SIGINT" else signal.default_int_handler)
-    from hippo_nav.pipeline.system import SlamSystem
+    from hippo_nav.system.slam import SlamSystem
 
     def long_correction(self):
         _kill_self(signame)

@@ -19,8 +19,8 @@ from hippo_nav.cli import build_parser, main
 from hippo_nav.datasets import KittiOdometry
 from hippo_nav.pipeline import FrameEvent, NetworkActivity, Pipeline, config_from_dict
 from hippo_nav.pipeline.frontend import tracked_pixels
-from hippo_nav.pipeline.records import STAGES
 from hippo_nav.synthetic import DEMO_SEQUENCE, demo_sequence
+from hippo_nav.system.records import STAGES
 from hippo_nav.viewer import RerunObserver, VideoObserver
 from hippo_nav.viewer.panels import angles_to_pixels, colorize, neural_panels
 from hippo_nav.viewer.rerun import BLOCK, _Blocks

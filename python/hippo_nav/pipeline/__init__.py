@@ -1,11 +1,10 @@
-"""The whole system: stereo VO → spatial memory ← view cells → experience map, with results and figures.
+"""The runner around the per-frame system (`hippo_nav.system`), with results and figures.
 
-- `system.py`: the per-frame algorithm (`SlamSystem.step`), its policies (`policies.py`) and the plug
-  board that picks its parts (`parts.py`);
-- `runner.py`: `Pipeline(dataset, config).run(out_dir)`, the runner around it (front-end threads in
-  `frontend.py`, signals, progress, `observers.py`, the record in `records.py`), then `assemble.py`,
-  `results.py` (metrics and the results folder) and `plots.py`;
-- `config.py`: the typed config of a run.
+- `runner.py`: `Pipeline(dataset, config).run(out_dir)` (front-end threads in `frontend.py`, signals,
+  progress, `observers.py`, the record in `records.py`), then `assemble.py`, `results.py` (metrics and the
+  results folder) and `plots.py`;
+- the system's names (`SlamSystem`, `PipelineConfig`, `config_from_dict`, …) are here too, so one import
+  serves a script.
 
 ```python
 from hippo_nav.pipeline import Pipeline, PipelineConfig, open_input, run
@@ -15,23 +14,27 @@ result.metrics["errors"]["corrected"]["ate_2d_m"]
 ```
 """
 
-from hippo_nav.pipeline.config import (
+from hippo_nav.pipeline.observers import FrameEvent, NetworkActivity, Observer, RunInfo
+from hippo_nav.pipeline.records import RunRecord, RunResult
+from hippo_nav.pipeline.runner import Pipeline, open_input, run
+from hippo_nav.system import (
     CorrectionConfig,
+    FrameRecord,
     InjectionConfig,
     LesionConfig,
+    Memory,
     MotionLimits,
     OutputConfig,
     PartsConfig,
     PipelineConfig,
+    SlamSystem,
+    SystemStep,
     ViewSearchConfig,
     config_from_dict,
     load_config,
+    parts,
     write_config,
 )
-from hippo_nav.pipeline.observers import FrameEvent, NetworkActivity, Observer, RunInfo
-from hippo_nav.pipeline.records import FrameRecord, RunRecord, RunResult
-from hippo_nav.pipeline.runner import Pipeline, open_input, run
-from hippo_nav.pipeline.system import Memory, SlamSystem, SystemStep
 
 __all__ = [
     "CorrectionConfig",
@@ -56,6 +59,7 @@ __all__ = [
     "config_from_dict",
     "load_config",
     "open_input",
+    "parts",
     "run",
     "write_config",
 ]

@@ -37,13 +37,14 @@ import time
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, NamedTuple, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any, NamedTuple, TypeVar
 
 import numpy as np
 
 from hippo_nav._core import HippoNavError
 from hippo_nav.datasets.base import StereoDataset, StereoFrame
 from hippo_nav.view_cells import ViewDescriptor
+from hippo_nav.vo import Odometry, OdometryStep
 from hippo_nav.workers import INLINE, Worker
 
 if TYPE_CHECKING:
@@ -67,18 +68,6 @@ __all__ = [
     "resolved_frontend_params",
     "tracked_pixels",
 ]
-
-
-class OdometryStep(Protocol):
-    @property
-    def camera_prev_from_camera_cur(self) -> np.ndarray: ...
-
-    @property
-    def status(self) -> str: ...
-
-
-class Odometry(Protocol):
-    def process(self, frame: StereoFrame) -> OdometryStep: ...
 
 
 def tracked_pixels(odometry: object) -> np.ndarray | None:

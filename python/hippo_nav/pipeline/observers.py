@@ -37,11 +37,11 @@ from hippo_nav._core import HippoNavError
 from hippo_nav.datasets.base import StereoFrame
 from hippo_nav.engine import SpatialMemory, SpatialReadout
 from hippo_nav.geometry import planar_xy
-from hippo_nav.pipeline.records import FrameRecord
+from hippo_nav.system.records import FrameRecord
 
 if TYPE_CHECKING:
     from hippo_nav.pipeline.records import RunResult
-    from hippo_nav.pipeline.system import SlamSystem
+    from hippo_nav.system.slam import SlamSystem
 
 __all__ = ["FrameEvent", "NetworkActivity", "Observer", "RunInfo"]
 

@@ -61,8 +61,9 @@ from hippo_nav.io.atomic import WriteError, open_atomic, write_text
 from hippo_nav.map import ExperienceMap
 from hippo_nav.memory import MEMORY_FOLDER, SavedMemory, write_memory
 from hippo_nav.metrics import KITTI_SEGMENT_LENGTHS_M, ate_rmse, relative_errors_kitti, trajectory_distances_m
-from hippo_nav.pipeline.config import PipelineConfig, resolved_config_dict
-from hippo_nav.pipeline.records import STAGES, RunRecord, RunResult
+from hippo_nav.pipeline.records import RunRecord, RunResult
+from hippo_nav.system.config import PipelineConfig, resolved_config_dict
+from hippo_nav.system.records import STAGES
 
 log = logging.getLogger("hippo_nav.pipeline")
 

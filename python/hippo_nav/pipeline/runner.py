@@ -30,9 +30,7 @@ from hippo_nav.closure import ClosureChain
 from hippo_nav.datasets.base import DatasetExtras, StereoDataset
 from hippo_nav.io import DatasetError
 from hippo_nav.memory import SavedMemory, read_memory
-from hippo_nav.pipeline import parts
 from hippo_nav.pipeline.assemble import assemble_result
-from hippo_nav.pipeline.config import PipelineConfig
 from hippo_nav.pipeline.frontend import (
     FrontEnd,
     FrontResult,
@@ -42,9 +40,12 @@ from hippo_nav.pipeline.frontend import (
     resolved_frontend_params,
 )
 from hippo_nav.pipeline.observers import FrameEvent, Observer, RunInfo
-from hippo_nav.pipeline.records import RunRecord, RunRecorder, RunResult, StageTimer
+from hippo_nav.pipeline.records import RunRecord, RunRecorder, RunResult
 from hippo_nav.pipeline.results import RunFacts
-from hippo_nav.pipeline.system import SlamSystem
+from hippo_nav.system import parts
+from hippo_nav.system.config import PipelineConfig
+from hippo_nav.system.records import StageTimer
+from hippo_nav.system.slam import SlamSystem
 from hippo_nav.view_cells import ViewDescriptor
 from hippo_nav.vo import VoParams
 from hippo_nav.vo.disparity import LIMIT_PX as DISPARITY_LIMIT_PX

@@ -177,7 +177,7 @@ def lesion_condition(lesioned: Sequence[bool]) -> str:
 def _plain_axes(folder: Path, metrics: dict[str, Any]) -> dict[str, Any]:
     """A plain run's axes from its files: sequence, lesion, the config values that differ from the
     defaults, seed."""
-    from hippo_nav.pipeline.config import PipelineConfig, resolved_config_dict
+    from hippo_nav.system.config import PipelineConfig, resolved_config_dict
 
     axes: dict[str, Any] = {
         "sequence": metrics.get("sequence"),

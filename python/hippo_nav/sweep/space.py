@@ -41,7 +41,7 @@ from typing import Any
 from hippo_nav._core import HippoNavError
 from hippo_nav._defaults import dotted
 from hippo_nav.io import read_text
-from hippo_nav.pipeline.config import PipelineConfig, config_from_dict, load_config, resolved_config_dict
+from hippo_nav.system.config import PipelineConfig, config_from_dict, load_config, resolved_config_dict
 
 MAX_SEED = 2**31 - 1
 LESION_MODULES = ("ventral", "intermediate", "dorsal")

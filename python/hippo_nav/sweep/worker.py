@@ -155,7 +155,7 @@ def execute_run(spec: RunSpec, sweep_dir: str, session: str, cpus: int, stop: An
 def _run(spec: RunSpec, dest: Path, manifest: dict[str, Any], observers: list[Any]) -> None:
     """The run itself; its outcome goes into `manifest` (status, exit status, error, config, checksum)."""
     from hippo_nav.pipeline import run
-    from hippo_nav.pipeline.config import resolved_config_dict
+    from hippo_nav.system.config import resolved_config_dict
 
     log = logging.getLogger("hippo_nav.sweep")
     try:

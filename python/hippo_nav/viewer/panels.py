@@ -25,7 +25,7 @@ import numpy as np
 from hippo_nav.engine import MODULE_NAMES, SpatialReadout
 from hippo_nav.geometry import planar_xy
 from hippo_nav.pipeline.observers import FrameEvent, NetworkActivity
-from hippo_nav.pipeline.records import FrameRecord
+from hippo_nav.system.records import FrameRecord
 from hippo_nav.view_cells import NO_VIEW_CELL
 
 TWO_PI = 2.0 * np.pi

@@ -44,7 +44,8 @@ import numpy as np
 from hippo_nav.engine import SpatialReadout
 from hippo_nav.geometry import planar_xy
 from hippo_nav.pipeline.observers import FrameEvent
-from hippo_nav.pipeline.records import STAGES, FrameRecord, RunResult
+from hippo_nav.pipeline.records import RunResult
+from hippo_nav.system.records import STAGES, FrameRecord
 from hippo_nav.viewer.panels import (
     MapGraph,
     Tracks,

@@ -16,24 +16,27 @@ from typing import Any
 
 from hippo_nav.datasets.base import StereoCalibration
 from hippo_nav.plugs import Part
+from hippo_nav.vo.base import Odometry, OdometryStep
 from hippo_nav.vo.odometry import STATUSES, StereoOdometry, VoParams, VoStep, planar_step, planar_velocities
 from hippo_nav.vo.replay import PoseFile, ReplayOdometry, read_pose_file, replay_odometry
 from hippo_nav.vo.run import run_odometry
 
-OdometryFactory = Callable[[Any, StereoCalibration], Any]  # (its section, camera) → the odometry
+OdometryFactory = Callable[[Any, StereoCalibration], Odometry]  # (its section, camera) → the odometry
 
 
 def _stereo(config: VoParams, calibration: StereoCalibration) -> StereoOdometry:
     return StereoOdometry(calibration, config)
 
 
-# The odometries by name (`parts.odometry`); the protocol is `hippo_nav.pipeline.frontend.Odometry`.
+# The odometries by name (`parts.odometry`); the protocol is `base.Odometry`.
 ODOMETRIES: dict[str, Part[OdometryFactory]] = {"stereo": Part(_stereo, VoParams, "vo")}
 
 __all__ = [
     "ODOMETRIES",
     "STATUSES",
+    "Odometry",
     "OdometryFactory",
+    "OdometryStep",
     "PoseFile",
     "ReplayOdometry",
     "StereoOdometry",

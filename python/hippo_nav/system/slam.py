@@ -47,18 +47,18 @@ from typing import Any
 import numpy as np
 
 from hippo_nav._core import HippoNavError
-from hippo_nav.closure import NO_ATTEMPT, ClosureChain
+from hippo_nav.closure import NO_ATTEMPT, ClosureAttempt, ClosureChain
 from hippo_nav.datasets.base import StereoCalibration, StereoFrame
 from hippo_nav.engine import SpatialMemory, SpatialReadout
 from hippo_nav.geometry import planar_from_pose, planar_step, se2_between, se2_compose
 from hippo_nav.map import ClosureMode, ExperienceMap, MapFrameOutcome, new_experience_map
 from hippo_nav.memory import SavedMemory, check_compatible
-from hippo_nav.pipeline import parts
-from hippo_nav.pipeline.config import PipelineConfig
-from hippo_nav.pipeline.policies import MotionLimiter, ViewRecall
-from hippo_nav.pipeline.records import FrameRecord, StageTimer
 from hippo_nav.plugs import Persistent
-from hippo_nav.view_cells import NO_VIEW_CELL, ViewDescriptor
+from hippo_nav.system import parts
+from hippo_nav.system.config import PipelineConfig
+from hippo_nav.system.policies import Motion, MotionLimiter, ViewRecall
+from hippo_nav.system.records import FrameRecord, StageTimer
+from hippo_nav.view_cells import NO_VIEW_CELL, ViewDescriptor, ViewObservation
 from hippo_nav.workers import INLINE, Worker
 
 log = logging.getLogger("hippo_nav.pipeline")
@@ -72,6 +72,16 @@ class SystemStep:
 
     record: FrameRecord
     readout: SpatialReadout  # the networks after this frame's step
+
+
+@dataclass(frozen=True)
+class _Motion:
+    """A frame's motion as the back end takes it: the map's planar odometry step (forward m, left m, yaw
+    rad), the time since the previous frame, and what is odd about the frame's place in the data."""
+
+    planar_step: tuple[float, float, float]
+    dt_s: float
+    data_flags: str
 
 
 @dataclass(frozen=True)
@@ -164,60 +174,88 @@ class SlamSystem:
         timer: StageTimer | None = None,
     ) -> SystemStep:
         """Process one frame whose odometry step is `camera_prev_from_camera_cur` (4 × 4 SE(3), identity on
-        the first frame; `vo_status` as the odometry reported it). `view_description`: the view descriptor's
-        `describe(frame)` when the front end made it ahead (None: made here). `disparity_offset_px`: the
-        odometry's stereo correction after this frame, which the closure's keyframes apply too (None: the
-        configured `vo.disparity_offset_px`). Slow work whose result is
-        needed only later goes to `worker`; `timer` is told where each stage ends."""
+        the first frame; `vo_status` as the odometry reported it), in the stages of the module doc.
+        `view_description`: the view descriptor's `describe(frame)` when the front end made it ahead (None:
+        made here). `disparity_offset_px`: the odometry's stereo correction after this frame, which the
+        closure's keyframes apply too (None: the configured `vo.disparity_offset_px`). Slow work whose result
+        is needed only later goes to `worker`; `timer` is told where each stage ends."""
         timer = timer if timer is not None else StageTimer()
         step = np.asarray(camera_prev_from_camera_cur, dtype=np.float64)
+        motion = self._odometry(frame, step)
+        obs = self._views(frame, motion, view_description)
+        timer.lap("views")
+        attempt = self._propose_closure(frame, motion, obs, disparity_offset_px)
+        timer.lap("closure")
+        readout, strength, limited = self._networks(motion, obs, attempt, vo_status)
+        timer.lap("engine")
+        outcome, note = self._experience_map(frame, motion, obs, attempt, readout, worker)
+        timer.lap("map")
+        record = self._record(frame, step, motion, vo_status, obs, strength, readout, limited, outcome, note)
+        self.frames += 1
+        self.map_revision += 1
+        self._last_frame_index = int(frame.index)
+        self._last_online_pose = record.online_pose
+        return SystemStep(record, readout)
 
-        # 1. Odometry → the 3-D pose, the planar step of the map, dt.
+    # -- the stages of a frame ------------------------------------------------------------------------
+    def _odometry(self, frame: StereoFrame, step: np.ndarray) -> _Motion:
+        """1. The SE(3) step chained into the 3-D pose; the map's planar step; dt; what is odd in the data."""
         previous_planar = planar_from_pose(self._vo_pose)
         self._vo_pose = self._vo_pose @ step
         planar = se2_between(previous_planar, planar_from_pose(self._vo_pose))
-        planar_step_map = (float(planar[0]), float(planar[1]), float(planar[2]))
         dt_s = 0.0 if self._last_timestamp_s is None else float(frame.timestamp_s - self._last_timestamp_s)
         self._last_timestamp_s = float(frame.timestamp_s)
-        data_flags = self._data_flags(frame, dt_s)
+        planar_step_map = (float(planar[0]), float(planar[1]), float(planar[2]))
+        return _Motion(planar_step_map, dt_s, self._data_flags(frame, dt_s))
 
-        # 2. Local view cells: which view, and what (if anything) it recalls.
-        description = view_description if view_description is not None else self.view_cells.describe(frame)
-        obs = self.view_recall.observe(description, planar_step_map, self.map, self.frames)
-        timer.lap("views")
+    def _views(self, frame: StereoFrame, motion: _Motion, description: Any) -> ViewObservation:
+        """2. Local view cells: which view, and what (if anything) it recalls."""
+        if description is None:
+            description = self.view_cells.describe(frame)
+        return self.view_recall.observe(description, motion.planar_step, self.map, self.frames)
 
-        # 3. Loop closure proposed (and measured) for the map to accept or reject. It needs the view and
-        # the map only, so it runs before the networks: the measured pose can also place the recalled state.
-        attempt = NO_ATTEMPT
-        if self.closure is not None:
-            cell = obs.cell_id
-            anchor = (
-                self.view_recall.anchor_of(int(cell))
-                if obs.status == "familiar" and cell is not None
-                else None
-            )
-            attempt = self.closure.propose(frame, planar_step_map, anchor, self.map, disparity_offset_px)
-        timer.lap("closure")
+    def _propose_closure(
+        self, frame: StereoFrame, motion: _Motion, obs: ViewObservation, disparity_offset_px: float | None
+    ) -> ClosureAttempt:
+        """3. A loop closure proposed (and measured) for the map to accept or reject. It needs the view and
+        the map only, so it runs before the networks: the measured pose can also place the recalled state."""
+        if self.closure is None:
+            return NO_ATTEMPT
+        cell = obs.cell_id
+        familiar = obs.status == "familiar" and cell is not None
+        anchor = self.view_recall.anchor_of(int(cell)) if familiar and cell is not None else None
+        return self.closure.propose(frame, motion.planar_step, anchor, self.map, disparity_offset_px)
 
-        # 4. Spatial memory integrates the motion, with what a familiar view recalls; a new view cell then
-        # stores the state it reached.
+    def _networks(
+        self, motion: _Motion, obs: ViewObservation, attempt: ClosureAttempt, vo_status: str
+    ) -> tuple[SpatialReadout, float, Motion]:
+        """4. The spatial memory integrates the motion, with what a familiar view recalls; a new view cell
+        then stores the state it reached. (readout, injection strength, what the engine was given)"""
         measured = None
         if attempt.closure is not None:
             measured = (attempt.closure.target_vertex, attempt.closure.agent_from_target)
         view, strength = self.view_recall.injection(obs, measured, self.map)
-        readout, motion = self.limits.drive(self.engine, planar_step_map, dt_s, vo_status, view)
+        readout, limited = self.limits.drive(self.engine, motion.planar_step, motion.dt_s, vo_status, view)
         self.view_recall.remember(obs, self.engine)
-        timer.lap("engine")
+        return readout, strength, limited
 
-        # 5. Experience map.
-        code = self._place_code(readout)
+    def _experience_map(
+        self,
+        frame: StereoFrame,
+        motion: _Motion,
+        obs: ViewObservation,
+        attempt: ClosureAttempt,
+        readout: SpatialReadout,
+        worker: Worker,
+    ) -> tuple[MapFrameOutcome, str]:
+        """5. The experience map takes the frame (a vertex, a loop link); the closure's note for frames.csv."""
         closure = attempt.closure
         outcome = self.map.on_frame(
             self.view_recall.active_cell,
-            code,
+            self._place_code(readout),
             float(readout.heading_rad),
-            planar_step_map,
-            max(dt_s, 0.0),
+            motion.planar_step,
+            max(motion.dt_s, 0.0),
             None if closure is None else closure.map_input(),
         )
         note = attempt.note
@@ -233,37 +271,46 @@ class SlamSystem:
         self.view_recall.anchor(obs, outcome.vertex, outcome.vertex_from_agent)
         if outcome.relocalized and self.relocalisation is None and obs.cell_id is not None:
             self._joined(frame, outcome, int(obs.cell_id))
-        timer.lap("map")
+        return outcome, note
 
+    def _record(
+        self,
+        frame: StereoFrame,
+        step: np.ndarray,
+        motion: _Motion,
+        vo_status: str,
+        obs: ViewObservation,
+        strength: float,
+        readout: SpatialReadout,
+        limited: Motion,
+        outcome: MapFrameOutcome,
+        note: str,
+    ) -> FrameRecord:
+        """6. What was decided, as the frame's record."""
         online_pose, vertex_from_agent = self._online_pose(outcome, step)
-        record = FrameRecord(
+        return FrameRecord(
             frame_index=int(frame.index),
             timestamp_s=float(frame.timestamp_s),
             vo_world_from_camera=self._vo_pose.copy(),
             vo_status=vo_status,
-            motion_flag=motion.flag,
-            yaw_rate_rad_s=motion.yaw_rate_rad_s,
-            speed_m_s=motion.speed_m_s,
+            motion_flag=limited.flag,
+            yaw_rate_rad_s=limited.yaw_rate_rad_s,
+            speed_m_s=limited.speed_m_s,
             view_cell=NO_VIEW_CELL if obs.cell_id is None else int(obs.cell_id),
             view_status=str(obs.status),
             view_difference=float(obs.difference),
             injection_strength=strength,
             heading_rad=float(readout.heading_rad),
-            place_code_rad=code,
+            place_code_rad=self._last_code,
             place_position_m=(float(readout.place_position_m[0]), float(readout.place_position_m[1])),
             vertex=-1 if outcome.vertex is None else int(outcome.vertex),
             vertex_created=bool(outcome.created),
             loop_closure=outcome.loop_closure,
             closure_note=note,
-            data_flags=data_flags,
+            data_flags=motion.data_flags,
             online_pose=online_pose,
             vertex_from_agent=vertex_from_agent,
         )
-        self.frames += 1
-        self.map_revision += 1
-        self._last_frame_index = int(frame.index)
-        self._last_online_pose = record.online_pose
-        return SystemStep(record, readout)
 
     def finish(self) -> None:
         """Wait for work still pending (keyframes being extracted on the worker)."""

@@ -10,7 +10,7 @@ Sections:
 - `seed`: the one seed of a run: where the networks' bumps start (heading code and grid phases), and
   OpenCV's RNG. The odometry does not depend on it (OpenCV's RANSAC uses its own fixed seed).
 - `overlap_front_end`: load frames and measure the odometry ahead, on worker threads (same results).
-- `parts`: which implementation fills each plug point (`hippo_nav.pipeline.parts`).
+- `parts`: which implementation fills each plug point (`hippo_nav.system.parts`).
 - `engine`: the spatial-memory network (`hippo_nav.engine.EngineConfig`).
 - `lesions`: "MEC inactivation" of each grid module — the one place lesions are set for a run (the
   engine's `lesioned` list is derived from it).

@@ -24,7 +24,7 @@ from hippo_nav._core import HippoNavError
 from hippo_nav.engine import CompactView, SpatialMemory, SpatialReadout, ViewPatterns
 from hippo_nav.geometry import se2_between, se2_compose
 from hippo_nav.map import ExperienceMap
-from hippo_nav.pipeline.config import InjectionConfig, MotionLimits, ViewSearchConfig
+from hippo_nav.system.config import InjectionConfig, MotionLimits, ViewSearchConfig
 from hippo_nav.view_cells import ViewDescriptor, ViewObservation
 
 log = logging.getLogger("hippo_nav.pipeline")

@@ -2,7 +2,7 @@
 
 | plug point | config | protocol | registry (its package) | built-in |
 |---|---|---|---|---|
-| odometry | `parts.odometry` | `pipeline.frontend.Odometry` | `vo.ODOMETRIES` | `"stereo"` (`vo` section) |
+| odometry | `parts.odometry` | `vo.Odometry` | `vo.ODOMETRIES` | `"stereo"` (`vo` section) |
 | view cells | `parts.view_cells` | `view_cells.ViewDescriptor` | `view_cells.DESCRIPTORS` | `"words"` (`view_words`), `"template"` (`views`) |
 | loop closure | `parts.closure` (a list, in order) | `closure.ClosureProposer` | `closure.PROPOSERS` | `"relocalisation"`, `"view_cell"`, `"proximity"`, `"birdseye"` (`closure.<name>`) |
 
@@ -25,11 +25,10 @@ from hippo_nav.datasets.base import StereoCalibration
 from hippo_nav.map import ClosureMode
 from hippo_nav.plugs import Part
 from hippo_nav.view_cells import DESCRIPTORS, ViewDescriptor
-from hippo_nav.vo import ODOMETRIES, VoParams
+from hippo_nav.vo import ODOMETRIES, Odometry, VoParams
 
 if TYPE_CHECKING:
-    from hippo_nav.pipeline.config import PipelineConfig
-    from hippo_nav.pipeline.frontend import Odometry
+    from hippo_nav.system.config import PipelineConfig
 
 # The registries by plug point, under their historical names too (`parts.VIEW_CELLS` is `DESCRIPTORS`).
 VIEW_CELLS = DESCRIPTORS
