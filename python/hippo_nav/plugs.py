@@ -13,27 +13,30 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any, ClassVar, Generic, Protocol, TypeVar, runtime_checkable
+from typing import TYPE_CHECKING, ClassVar, Generic, Protocol, TypeVar, runtime_checkable
 
 import numpy as np
-from pydantic import ConfigDict, ValidationError, model_validator
+from pydantic import ConfigDict, ModelWrapValidatorHandler, ValidationError, model_validator
 from pydantic_core import InitErrorDetails
 from pydantic_core import ValidationError as CoreValidationError
 
 from hippo_nav._defaults import ConfigSection
 
-F = TypeVar("F", bound=Callable[..., Any])
+if TYPE_CHECKING:
+    from typing_extensions import Self
+
+F_co = TypeVar("F_co", bound=Callable[..., object], covariant=True)
 S = TypeVar("S", bound=ConfigSection)
 
 __all__ = ["Part", "PartSections", "Persistent"]
 
 
 @dataclass(frozen=True)
-class Part(Generic[F]):
+class Part(Generic[F_co]):
     """One registry entry: `build` makes the part (its signature is the plug point's: it is given its own
     config section first), `config` is that section's model, `section` its name in the config."""
 
-    build: F
+    build: F_co
     config: type[ConfigSection]
     section: str
 
@@ -44,7 +47,7 @@ class Persistent(Protocol):
     stores depends on (a memory made with others is refused), `export_state()` gives its state as named
     arrays, `restore_state(saved)` takes them back into a fresh part."""
 
-    def depends_on(self) -> dict[str, Any]: ...
+    def depends_on(self) -> dict[str, object]: ...
 
     def export_state(self) -> dict[str, np.ndarray]: ...
 
@@ -58,7 +61,7 @@ class PartSections(ConfigSection):
 
     model_config = ConfigDict(extra="allow")
     # The registries whose parts' sections this section holds; `part_sections` may derive them otherwise.
-    registries: ClassVar[tuple[Callable[[], Mapping[str, Part[Any]]], ...]] = ()
+    registries: ClassVar[tuple[Callable[[], Mapping[str, Part[Callable[..., object]]]], ...]] = ()
 
     @classmethod
     def part_sections(cls) -> dict[str, type[ConfigSection]]:
@@ -71,7 +74,7 @@ class PartSections(ConfigSection):
 
     @model_validator(mode="wrap")
     @classmethod
-    def _validate_part_sections(cls, data: Any, handler: Callable[[Any], Any]) -> Any:
+    def _validate_part_sections(cls, data: object, handler: ModelWrapValidatorHandler[Self]) -> Self:
         if not isinstance(data, dict):
             return handler(data)
         data = dict(data)

@@ -48,7 +48,7 @@ class ThumbnailCells:
     def image_rows(self, height_px):
         return None
 
-    def depends_on(self) -> dict[str, Any]:
+    def depends_on(self) -> dict[str, object]:
         return {"width_px": self.config.width_px}
 
     def export_state(self) -> dict[str, np.ndarray]:
@@ -92,7 +92,7 @@ class NearestVertexProposer:
     def after_map(self, outcome) -> None:
         pass
 
-    def depends_on(self) -> dict[str, Any]:
+    def depends_on(self) -> dict[str, object]:
         return {}
 
     def export_state(self) -> dict[str, np.ndarray]:

@@ -14,7 +14,6 @@ proposer's own state under its name (`proximity.ring_turn`).
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
 
 import numpy as np
 
@@ -105,7 +104,7 @@ class ClosureChain:
         return self.store.stored_bytes
 
     # -- Persistent -----------------------------------------------------------------------------------
-    def depends_on(self) -> dict[str, Any]:
+    def depends_on(self) -> dict[str, object]:
         """What the saved keyframes depend on (the proposers keep no settings a memory depends on)."""
         return self.store.depends_on()
 

@@ -8,8 +8,8 @@ the proposers had sections of their own (`closure.proximity_min_inliers` → `cl
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any, ClassVar, Literal
+from collections.abc import Callable, Mapping
+from typing import ClassVar, Literal
 
 from pydantic import ConfigDict, Field
 
@@ -17,7 +17,7 @@ from hippo_nav._defaults import ConfigSection
 from hippo_nav.plugs import Part, PartSections
 
 
-def _proposers() -> Mapping[str, Part[Any]]:
+def _proposers() -> Mapping[str, Part[Callable[..., object]]]:
     from hippo_nav.closure.registry import PROPOSERS  # the registry imports the proposers, which import this
 
     return PROPOSERS
@@ -137,8 +137,8 @@ _PREFIXED = ("proximity", "birdseye", "relocalisation")  # `<name>_<field>` → 
 
 
 def migrate_flat_closure(
-    closure: dict[str, Any], proposers: list[str]
-) -> tuple[dict[str, Any], list[str], list[str]]:
+    closure: dict[str, object], proposers: list[str]
+) -> tuple[dict[str, object], list[str], list[str]]:
     """(the `closure` section with flat keys moved to their sections, the proposers with the old on/off
     switches `proximity` and `birdseye` applied, one line per key moved). A key already at its new place
     wins over its old spelling."""

@@ -18,8 +18,6 @@ state by itself (no view is familiar); it is noted `accepted_proximity` in `fram
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 from pydantic import ConfigDict, Field
 
@@ -129,7 +127,7 @@ class ProximityProposer:
         pass
 
     # Persistent: the ring's turn (a resumed run measures the ring where it stopped).
-    def depends_on(self) -> dict[str, Any]:
+    def depends_on(self) -> dict[str, object]:
         return {}
 
     def export_state(self) -> dict[str, np.ndarray]:

@@ -5,7 +5,6 @@ of proposing loops is its module in `closure/` (a config section model and a cla
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
 
 from hippo_nav.closure.base import ClosureProposer
 from hippo_nav.closure.birdseye import BirdsEyeConfig, BirdsEyeProposer
@@ -16,7 +15,7 @@ from hippo_nav.plugs import Part
 
 __all__ = ["DEFAULT_PROPOSERS", "PROPOSERS", "ProposerFactory"]
 
-ProposerFactory = Callable[[Any], ClosureProposer]  # its config section → the proposer
+ProposerFactory = Callable[..., ClosureProposer]  # its config section → the proposer
 
 PROPOSERS: dict[str, Part[ProposerFactory]] = {
     "relocalisation": Part(RelocalisationProposer, RelocalisationConfig, "relocalisation"),

@@ -10,8 +10,6 @@ nothing.
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 from pydantic import ConfigDict, Field
 
@@ -120,7 +118,7 @@ class RelocalisationProposer:
         pass
 
     # Persistent: the hypotheses not yet confirmed (a resumed run that was still lost keeps them).
-    def depends_on(self) -> dict[str, Any]:
+    def depends_on(self) -> dict[str, object]:
         return {}
 
     def export_state(self) -> dict[str, np.ndarray]:

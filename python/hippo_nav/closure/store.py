@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import logging
 from concurrent.futures import Future
-from typing import Any
 
 import numpy as np
 
@@ -185,7 +184,7 @@ class KeyframeStore:
         return int(sum(k.nbytes for k in self.keyframes.values()))
 
     # -- Persistent -----------------------------------------------------------------------------------
-    def depends_on(self) -> dict[str, Any]:
+    def depends_on(self) -> dict[str, object]:
         # The keyframes' descriptors: SIFT's and ORB's cannot be matched with each other.
         return {"descriptor": self.config.descriptor}
 

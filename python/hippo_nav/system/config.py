@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import json
 import logging
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any, ClassVar, Literal
 
@@ -58,7 +58,7 @@ from hippo_nav.vo import ODOMETRIES
 log = logging.getLogger("hippo_nav.pipeline")
 
 # The registry of each field of the `parts` section.
-_REGISTRIES: dict[str, Mapping[str, Part[Any]]] = {
+_REGISTRIES: dict[str, Mapping[str, Part[Callable[..., object]]]] = {
     "odometry": ODOMETRIES,
     "view_cells": DESCRIPTORS,
     "closure": PROPOSERS,
@@ -239,11 +239,11 @@ class OutputConfig(_Section):
     )
 
 
-def _odometries() -> Mapping[str, Part[Any]]:
+def _odometries() -> Mapping[str, Part[Callable[..., object]]]:
     return ODOMETRIES
 
 
-def _descriptors() -> Mapping[str, Part[Any]]:
+def _descriptors() -> Mapping[str, Part[Callable[..., object]]]:
     return DESCRIPTORS
 
 
@@ -272,7 +272,7 @@ class PipelineConfig(PartSections):
 
     @model_validator(mode="before")
     @classmethod
-    def _read_flat_closure_keys(cls, data: Any) -> Any:
+    def _read_flat_closure_keys(cls, data: object) -> object:
         """Configs written before the closure proposers had sections of their own (module doc of
         `hippo_nav.closure.config`) are read as they meant, with a warning naming each key's new place."""
         if not isinstance(data, dict):

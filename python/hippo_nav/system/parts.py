@@ -16,8 +16,8 @@ closes loops itself from the view-cell ids.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import TYPE_CHECKING, Any
+from collections.abc import Callable, Mapping
+from typing import TYPE_CHECKING, TypeVar
 
 from hippo_nav._core import HippoNavError
 from hippo_nav.closure import PROPOSERS, ClosureChain, KeyframeStore
@@ -27,13 +27,15 @@ from hippo_nav.plugs import Part
 from hippo_nav.view_cells import DESCRIPTORS, ViewDescriptor
 from hippo_nav.vo import ODOMETRIES, Odometry, VoParams
 
+F = TypeVar("F", bound=Callable[..., object])
+
 if TYPE_CHECKING:
     from hippo_nav.system.config import PipelineConfig
 
 # The registries by plug point, under their historical names too (`parts.VIEW_CELLS` is `DESCRIPTORS`).
 VIEW_CELLS = DESCRIPTORS
 CLOSURE_PROPOSERS = PROPOSERS
-REGISTRIES: dict[str, Mapping[str, Part[Any]]] = {
+REGISTRIES: dict[str, Mapping[str, Part[Callable[..., object]]]] = {
     "odometry": ODOMETRIES,
     "view_cells": DESCRIPTORS,
     "closure": PROPOSERS,
@@ -41,8 +43,7 @@ REGISTRIES: dict[str, Mapping[str, Part[Any]]] = {
 """The registry of each field of the config's `parts` section."""
 
 
-def _choice(plug: str, name: str) -> Part[Any]:
-    registry = REGISTRIES[plug]
+def _choice(registry: Mapping[str, Part[F]], plug: str, name: str) -> Part[F]:
     if name not in registry:
         raise HippoNavError(f"parts.{plug}: unknown {name!r}; choose from {', '.join(sorted(registry))}")
     return registry[name]
@@ -50,14 +51,14 @@ def _choice(plug: str, name: str) -> Part[Any]:
 
 def make_odometry(config: PipelineConfig, calibration: StereoCalibration) -> Odometry:
     """The configured odometry for a camera."""
-    part = _choice("odometry", config.parts.odometry)
+    part = _choice(ODOMETRIES, "odometry", config.parts.odometry)
     odometry: Odometry = part.build(config.section(part.section), calibration)
     return odometry
 
 
 def make_view_cells(config: PipelineConfig, calibration: StereoCalibration) -> ViewDescriptor:
     """The configured view descriptor for a camera."""
-    part = _choice("view_cells", config.parts.view_cells)
+    part = _choice(DESCRIPTORS, "view_cells", config.parts.view_cells)
     descriptor: ViewDescriptor = part.build(config.section(part.section), calibration)
     return descriptor
 
@@ -72,7 +73,7 @@ def make_closure(config: PipelineConfig, calibration: StereoCalibration) -> Clos
     store = KeyframeStore(calibration, closure, disparity_offset_px=offset_px)
     proposers = []
     for name in config.parts.closure:
-        part = _choice("closure", name)
+        part = _choice(PROPOSERS, "closure", name)
         proposers.append((name, part.build(closure.section(part.section))))
     return ClosureChain(store, proposers)
 

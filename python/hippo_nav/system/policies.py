@@ -24,7 +24,7 @@ from hippo_nav._core import HippoNavError
 from hippo_nav.engine import CompactView, SpatialMemory, SpatialReadout, ViewPatterns
 from hippo_nav.geometry import se2_between, se2_compose
 from hippo_nav.map import ExperienceMap
-from hippo_nav.system.config import InjectionConfig, MotionLimits, ViewSearchConfig
+from hippo_nav.system.config import CorrectionConfig, InjectionConfig, MotionLimits, ViewSearchConfig
 from hippo_nav.view_cells import ViewDescriptor, ViewObservation
 
 log = logging.getLogger("hippo_nav.pipeline")
@@ -369,3 +369,24 @@ class MotionLimiter:
             return engine.step(0.0, 0.0, min(max(dt_s, 1e-3), 10.0), view), held
         except HippoNavError:
             return engine.readout(), held
+
+
+def final_correction(experience_map: ExperienceMap, cfg: CorrectionConfig) -> dict[str, Any]:
+    """The configured correction run once after the last frame; its report (method "none" when disabled,
+    loop-free, or when a session never joined its loaded map: the loaded part was corrected by its own run
+    and nothing links the session's part to it)."""
+    if experience_map.unjoined_from is not None:
+        return {"method": "none", "reason": "not relocalised in the loaded map"}
+    if cfg.method == "none" or not np.asarray(experience_map.export()["link_is_loop"]).any():
+        return {"method": "none", "reason": "disabled" if cfg.method == "none" else "no loop closure"}
+    if cfg.method == "relaxation":
+        report = experience_map.correct("relaxation", passes=cfg.relaxation_passes, gain=cfg.relaxation_gain)
+    else:
+        report = experience_map.correct(
+            "least_squares",
+            initialization="current",
+            robust_loss=cfg.robust_loss,
+            robust_scale_chi2=cfg.robust_scale_chi2,
+            max_iterations=cfg.max_iterations,
+        )
+    return {"method": cfg.method, **report.as_dict()}

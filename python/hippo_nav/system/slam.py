@@ -56,7 +56,7 @@ from hippo_nav.memory import SavedMemory, check_compatible
 from hippo_nav.plugs import Persistent
 from hippo_nav.system import parts
 from hippo_nav.system.config import PipelineConfig
-from hippo_nav.system.policies import Motion, MotionLimiter, ViewRecall
+from hippo_nav.system.policies import Motion, MotionLimiter, ViewRecall, final_correction
 from hippo_nav.system.records import FrameRecord, StageTimer
 from hippo_nav.view_cells import NO_VIEW_CELL, ViewDescriptor, ViewObservation
 from hippo_nav.workers import INLINE, Worker
@@ -318,30 +318,14 @@ class SlamSystem:
             self.closure.finish()
 
     def correct(self) -> dict[str, Any]:
-        """The configured final correction (`config.correction`); its report (method "none" when disabled,
-        loop-free, or when a session never joined its loaded map: the loaded part was corrected by its own
-        run and nothing links the session's part to it)."""
-        cfg = self.config.correction
-        export = self.map.export()
-        if self.map.unjoined_from is not None:
-            return {"method": "none", "reason": "not relocalised in the loaded map"}
-        if cfg.method == "none" or not np.asarray(export["link_is_loop"]).any():
-            return {"method": "none", "reason": "disabled" if cfg.method == "none" else "no loop closure"}
-        self.map_revision += 1
-        if cfg.method == "relaxation":
-            report = self.map.correct("relaxation", passes=cfg.relaxation_passes, gain=cfg.relaxation_gain)
-        else:
-            report = self.map.correct(
-                "least_squares",
-                initialization="current",
-                robust_loss=cfg.robust_loss,
-                robust_scale_chi2=cfg.robust_scale_chi2,
-                max_iterations=cfg.max_iterations,
-            )
-        return {"method": cfg.method, **report.as_dict()}
+        """The configured final correction (`config.correction`, `policies.final_correction`); its report."""
+        report = final_correction(self.map, self.config.correction)
+        if report["method"] != "none":
+            self.map_revision += 1
+        return report
 
     # ----------------------------------------------------------------------------------------------
-    def depends_on(self) -> dict[str, Any]:
+    def depends_on(self) -> dict[str, object]:
         """The settings what this system stores depends on (a memory made with others is refused): each
         persistent part's own (`Persistent.depends_on`), the networks', the map's and the camera's."""
         cfg = json.loads(self.config.model_dump_json(by_alias=True))
@@ -373,12 +357,8 @@ class SlamSystem:
         keyframes = {} if self.closure is None else self.closure.export_state()
         views = {f"cells.{k}": v for k, v in descriptor.export_state().items()}
         views.update({f"recall.{k}": v for k, v in self.view_recall.export_state().items()})
-        engine = self.engine.state()
         state = {
-            "engine.hd": engine["hd"],
-            "engine.place": engine["place"],
-            "engine.aux": np.array(engine["aux"]),
-            **{f"engine.grid{i}": g for i, g in enumerate(engine["grid"])},
+            **_engine_arrays(self.engine),
             "vo_pose": self._vo_pose,
             "last_timestamp_s": np.array(
                 np.nan if self._last_timestamp_s is None else self._last_timestamp_s
@@ -437,14 +417,7 @@ class SlamSystem:
         }
         if resume:
             st = memory.state
-            self.engine.set_state(
-                {
-                    "hd": st["engine.hd"],
-                    "grid": [st[f"engine.grid{i}"] for i in range(len(self.engine.config.grid))],
-                    "place": st["engine.place"],
-                    "aux": str(st["engine.aux"]),
-                }
-            )
+            _restore_engine(self.engine, st)
             self._vo_pose = np.array(st["vo_pose"], np.float64)
             timestamp = float(st["last_timestamp_s"])
             self._last_timestamp_s = None if np.isnan(timestamp) else timestamp
@@ -513,3 +486,26 @@ class SlamSystem:
         if outcome.world_from_agent is None:
             return se2_compose(self._last_online_pose, np.array(planar_step(step))), np.full(3, np.nan)
         return np.array(outcome.world_from_agent), np.array(outcome.vertex_from_agent)
+
+
+def _engine_arrays(engine: SpatialMemory) -> dict[str, np.ndarray]:
+    """The networks' state as named arrays of a memory folder's `state.npz`."""
+    state = engine.state()
+    return {
+        "engine.hd": state["hd"],
+        "engine.place": state["place"],
+        "engine.aux": np.array(state["aux"]),
+        **{f"engine.grid{i}": g for i, g in enumerate(state["grid"])},
+    }
+
+
+def _restore_engine(engine: SpatialMemory, saved: dict[str, np.ndarray]) -> None:
+    """The networks set to the state of `_engine_arrays`."""
+    engine.set_state(
+        {
+            "hd": saved["engine.hd"],
+            "grid": [saved[f"engine.grid{i}"] for i in range(len(engine.config.grid))],
+            "place": saved["engine.place"],
+            "aux": str(saved["engine.aux"]),
+        }
+    )

@@ -26,15 +26,13 @@ network state is kept and recalled: `hippo_nav.engine.recall`.
 """
 
 from collections.abc import Callable
-from typing import Any
 
-from hippo_nav.datasets.base import StereoCalibration
 from hippo_nav.plugs import Part
 from hippo_nav.view_cells.base import NO_VIEW_CELL, Observation, ViewDescriptor, ViewObservation, ViewStatus
 from hippo_nav.view_cells.template import TemplateViewCells, TemplateViewConfig, field_of_view_rad
 from hippo_nav.view_cells.words import Vocabulary, WordViewCells, WordViewConfig, train_vocabulary
 
-DescriptorFactory = Callable[[Any, StereoCalibration], ViewDescriptor]  # (its section, camera) → descriptor
+DescriptorFactory = Callable[..., ViewDescriptor]  # (its config section, the camera) → the descriptor
 
 DESCRIPTORS: dict[str, Part[DescriptorFactory]] = {
     "template": Part(TemplateViewCells.for_camera, TemplateViewConfig, "views"),

@@ -201,7 +201,7 @@ class TemplateViewCells:
         return self._cells.templates()
 
     # Persistent (docs/memory.md): the templates, and the settings that shape them.
-    def depends_on(self) -> dict[str, Any]:
+    def depends_on(self) -> dict[str, object]:
         cfg = self.config
         return {
             "width_px": cfg.width_px,

@@ -259,7 +259,7 @@ class WordViewCells:
         return int(self._cells.add(_pixels(view), view.descriptors))
 
     # Persistent (docs/memory.md): every cell's features; they depend on the detector and the vocabulary.
-    def depends_on(self) -> dict[str, Any]:
+    def depends_on(self) -> dict[str, object]:
         cfg = self.config
         return {
             "max_width_px": cfg.max_width_px,

@@ -12,7 +12,6 @@ with the same `process(frame) -> VoStep` contract; `replay_odometry(path, align=
 """
 
 from collections.abc import Callable
-from typing import Any
 
 from hippo_nav.datasets.base import StereoCalibration
 from hippo_nav.plugs import Part
@@ -21,7 +20,7 @@ from hippo_nav.vo.odometry import STATUSES, StereoOdometry, VoParams, VoStep, pl
 from hippo_nav.vo.replay import PoseFile, ReplayOdometry, read_pose_file, replay_odometry
 from hippo_nav.vo.run import run_odometry
 
-OdometryFactory = Callable[[Any, StereoCalibration], Odometry]  # (its section, camera) → the odometry
+OdometryFactory = Callable[..., Odometry]  # (its config section, the camera) → the odometry
 
 
 def _stereo(config: VoParams, calibration: StereoCalibration) -> StereoOdometry:
