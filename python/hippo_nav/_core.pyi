@@ -109,13 +109,7 @@ class _SlidingWindow:
         cx: float,
         cy: float,
         baseline_m: float,
-        max_keyframes: int = 8,
-        fixed_keyframes: int = 0,
-        pixel_sigma_px: float = 1.0,
-        right_sigma_px: float = 1.0,
-        iterations: int = 6,
-        min_shared_landmarks: int = 20,
-        min_disparity_px: float = 1.0,
+        params_json: str | None = None,
     ) -> Self: ...
     def __len__(self) -> int: ...
     @property

@@ -113,3 +113,13 @@ def planar_step(camera_prev_from_camera_cur: np.ndarray) -> tuple[float, float, 
     of the previous camera."""
     forward, left, yaw = planar_from_pose(camera_prev_from_camera_cur)
     return float(forward), float(left), float(yaw)
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """(…, 3, 3) cross-product matrices [v]× of (…, 3) vectors: `skew(a) @ b == np.cross(a, b)`."""
+    v = np.asarray(v, dtype=np.float64)
+    s = np.zeros(v.shape[:-1] + (3, 3))
+    s[..., 0, 1], s[..., 0, 2] = -v[..., 2], v[..., 1]
+    s[..., 1, 0], s[..., 1, 2] = v[..., 2], -v[..., 0]
+    s[..., 2, 0], s[..., 2, 1] = -v[..., 1], v[..., 0]
+    return s

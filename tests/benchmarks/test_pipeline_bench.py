@@ -96,7 +96,7 @@ def test_pipeline_real_kitti_06_windowed_vo(benchmark, shared_data):
     benchmark.group = "pipeline by VO"
     data = KittiOdometry(shared_data / "kitti_odometry", "06")
     data.name = "KITTI 06 frames 0-50, windowed VO (baseline: frame to frame)"
-    _bench(benchmark, data, {}, {"vo": {"window_keyframes": 0}})
+    _bench(benchmark, data, {}, {"vo": {"window": {"max_keyframes": 0}}})
 
 
 @pytest.mark.data

@@ -24,7 +24,7 @@ import pytest
 from hippo_nav.datasets import KittiOdometry
 from hippo_nav.metrics import relative_errors_kitti
 from hippo_nav.synthetic import DEMO_SEQUENCE, demo_sequence
-from hippo_nav.vo import StereoOdometry, VoParams
+from hippo_nav.vo import StereoOdometry, VoParams, WindowConfig
 
 PREVIOUS_VO = VoParams(
     track_features=False,
@@ -35,7 +35,7 @@ PREVIOUS_VO = VoParams(
     klt_check_window_px="full",
     # Everything added since is pinned off too, or the baseline grows with every default it inherits (it
     # did: the window, the self-calibration and the refined matches had made it 1.4× slower).
-    window_keyframes=0,
+    window=WindowConfig(max_keyframes=0),
     disparity_self_calibration=False,
     refine_matches=False,
 )

@@ -13,8 +13,8 @@ Rows (each VO variant on each set, measured in the same run, one after another o
 Time per frame is the VO's own (`process`, images already decoded), the median of the run, as a ratio
 against the first variant in the same run: absolute times on a shared machine are noise.
 
-Variants: `frame_to_frame` (`vo.window_keyframes = 0`, the offset fixed, KLT's matches as they are: the VO
-before the windowed refinement), `window_fixed` (`vo.window_keyframes = 8`, the disparity offset fixed as
+Variants: `frame_to_frame` (`vo.window.max_keyframes = 0`, the offset fixed, KLT's matches as they are: the VO
+before the windowed refinement), `window_fixed` (`vo.window.max_keyframes = 8`, the disparity offset fixed as
 configured: the VO before the self-calibration), `window_klt` (the window and the self-calibration on KLT's
 matches: the VO before the warped-window refinement, `vo.refine_matches`) and `window` (the default);
 `--variant NAME=JSON` adds or replaces one (a `vo` section's overrides). Where the self-calibration moved the
@@ -48,8 +48,16 @@ from hippo_nav.vo import StereoOdometry, VoParams
 SHORT_LENGTHS_M = (10.0, 20.0, 30.0, 40.0, 50.0)
 RENDERED = ("00", "02", "05", "06", "08")
 VARIANTS = {
-    "frame_to_frame": {"window_keyframes": 0, "disparity_self_calibration": False, "refine_matches": False},
-    "window_fixed": {"window_keyframes": 8, "disparity_self_calibration": False, "refine_matches": False},
+    "frame_to_frame": {
+        "window": {"max_keyframes": 0},
+        "disparity_self_calibration": False,
+        "refine_matches": False,
+    },
+    "window_fixed": {
+        "window": {"max_keyframes": 8},
+        "disparity_self_calibration": False,
+        "refine_matches": False,
+    },
     "window_klt": {"refine_matches": False},
     "window": {},  # the default
 }

@@ -15,10 +15,8 @@ from hippo_nav.geometry import planar_from_pose, se2_between
 from hippo_nav.io import write_kitti_poses
 from hippo_nav.pipeline import Pipeline, config_from_dict
 from hippo_nav.synthetic import (
-    DEMO_SEQUENCE,
     StreetWorld,
     default_cache_dir,
-    demo_sequence,
     drifting_odometry,
     planar_poses,
     render_cached,
@@ -40,11 +38,6 @@ def street() -> KittiOdometry:
     forward = 1.5 * np.arange(60)
     poses = planar_poses(forward, np.zeros(60), np.zeros(60))
     return KittiOdometry(render_cached(poses, default_cache_dir() / "test_street", "00", seed=3), "00")
-
-
-@pytest.fixture(scope="module")
-def demo() -> KittiOdometry:
-    return KittiOdometry(demo_sequence(), DEMO_SEQUENCE)
 
 
 def test_without_closures_the_map_writes_back_its_odometry_in_3d(street, tmp_path):

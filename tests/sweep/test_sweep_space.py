@@ -62,9 +62,9 @@ def test_a_bad_value_is_refused_before_anything_runs_with_the_config_files_messa
     with pytest.raises(HippoNavError, match="views.novelty_thresh"):
         build_space(sets=["views.novelty_thresh=0.4"]).runs()
     out = tmp_path / "sweep"
-    assert main(["sweep", "--set", "vo.window_keyframes=-3", "--out", str(out), "--no-progress"]) == 2
+    assert main(["sweep", "--set", "vo.window.max_keyframes=-3", "--out", str(out), "--no-progress"]) == 2
     err = capsys.readouterr().err
-    assert "vo.window_keyframes" in err and len(err.strip().splitlines()) == 1 and not out.exists()
+    assert "vo.window.max_keyframes" in err and len(err.strip().splitlines()) == 1 and not out.exists()
     with pytest.raises(HippoNavError, match="lesion 'frontal'"):
         build_space(lesions="none,frontal")
     with pytest.raises(HippoNavError, match="needs a dataset"):

@@ -11,17 +11,11 @@ import pytest
 from hippo_nav.closure import ClosureConfig, KeyframeExtractor, KeyframeStore
 from hippo_nav.datasets import KittiOdometry, StereoFrame
 from hippo_nav.metrics import relative_errors_kitti
-from hippo_nav.synthetic import DEMO_SEQUENCE, demo_sequence
 from hippo_nav.vo import StereoOdometry, VoParams
 from hippo_nav.vo.disparity import DisparityCalibration, frame_offset_px
 
 FX, FY, CX, CY, BASELINE_M = 700.0, 700.0, 600.0, 180.0, 0.54
 SHORT_LENGTHS_M = (10.0, 20.0, 30.0, 40.0, 50.0)
-
-
-@pytest.fixture(scope="module")
-def demo() -> KittiOdometry:
-    return KittiOdometry(demo_sequence(), DEMO_SEQUENCE)
 
 
 def _tracks(step_m: float, offset_px: float, noise_px: float, seed: int = 0):

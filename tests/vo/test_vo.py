@@ -9,15 +9,10 @@ import pytest
 from hippo_nav import HippoNavError
 from hippo_nav.datasets import KittiOdometry, StereoFrame
 from hippo_nav.metrics import relative_errors_kitti
-from hippo_nav.synthetic import DEMO_SEQUENCE, demo_sequence, planar_poses
-from hippo_nav.vo import StereoOdometry, VoParams, planar_step, run_odometry
+from hippo_nav.synthetic import planar_poses
+from hippo_nav.vo import StereoOdometry, VoParams, WindowConfig, planar_step, run_odometry
 
 SHORT_LENGTHS_M = (10.0, 20.0, 30.0, 40.0, 50.0)
-
-
-@pytest.fixture(scope="module")
-def demo() -> KittiOdometry:
-    return KittiOdometry(demo_sequence(), DEMO_SEQUENCE)
 
 
 def _rebased(poses: np.ndarray) -> np.ndarray:
@@ -191,7 +186,9 @@ def test_real_kitti_01_highway_scale_follows_the_right_camera_baseline(shared_da
     klt = {"refine_matches": False}
     # The frame-to-frame steps: their scale is the stereo pair's alone (the window adds temporal parallax,
     # which pulls a biased pair's scale part of the way back: 1.118 here).
-    est, _ = run_odometry(data, VoParams(window_keyframes=0, disparity_self_calibration=False, **klt))
+    est, _ = run_odometry(
+        data, VoParams(window=WindowConfig(max_keyframes=0), disparity_self_calibration=False, **klt)
+    )
     true_steps = np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1)
     ratio = np.median(np.linalg.norm(np.diff(est[:, :3, 3], axis=0), axis=1) / true_steps)
     baseline_cam3_m = -data.calibration.P3[0, 3] / data.calibration.P3[0, 0]

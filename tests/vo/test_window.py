@@ -1,27 +1,22 @@
-"""The VO's windowed refinement (`VoParams.window_keyframes`): it lowers the drift of a rendered drive, keeps
+"""The VO's windowed refinement (`VoParams.window`): it lowers the drift of a rendered drive, keeps
 a frame the tracker rejects out of the window, and leaves the frame-to-frame VO as it was when off. The
 bundle adjustment itself (outlier clusters, resets) is tested in crates/hippo_vo/tests/window.rs."""
 
 from __future__ import annotations
 
 import dataclasses
+import json
 
 import numpy as np
 import pytest
 from hippo_nav import HippoNavError
 from hippo_nav._core import _SlidingWindow
-from hippo_nav.datasets import KittiOdometry, StereoFrame
+from hippo_nav.datasets import StereoFrame
 from hippo_nav.metrics import ate_rmse, relative_errors_kitti
-from hippo_nav.synthetic import DEMO_SEQUENCE, demo_sequence
-from hippo_nav.vo import VoParams, run_odometry
+from hippo_nav.vo import VoParams, WindowConfig, run_odometry
 
-FRAME_TO_FRAME = VoParams(window_keyframes=0)
+FRAME_TO_FRAME = VoParams(window=WindowConfig(max_keyframes=0))
 WINDOW = VoParams()  # the default: 8 keyframes
-
-
-@pytest.fixture(scope="module")
-def demo() -> KittiOdometry:
-    return KittiOdometry(demo_sequence(), DEMO_SEQUENCE)
 
 
 def _ground_truth(dataset) -> np.ndarray:
@@ -116,10 +111,10 @@ def test_a_rejected_frame_does_not_poison_the_window(demo):
 def test_on_by_default_off_means_frame_to_frame_and_the_window_checks_its_input(demo):
     frames = _Frames(demo, range(15))
     off_a, _ = run_odometry(frames, FRAME_TO_FRAME)
-    off_b, _ = run_odometry(frames, VoParams(window_keyframes=1))
+    off_b, _ = run_odometry(frames, VoParams(window=WindowConfig(max_keyframes=1)))
     np.testing.assert_array_equal(off_a, off_b)
     on, _ = run_odometry(frames, WINDOW)
-    assert WINDOW.window_keyframes == 8  # on by default
+    assert WINDOW.window.max_keyframes == 8  # on by default
     assert not np.array_equal(on, off_a)
     window = _SlidingWindow(185.0, 185.0, 160.0, 48.0, 0.54)
     ids, left, right = np.array([1, 2]), np.array([[10.0, 20.0], [30.0, 40.0]]), np.array([5.0, np.nan])
@@ -132,10 +127,42 @@ def test_on_by_default_off_means_frame_to_frame_and_the_window_checks_its_input(
     with pytest.raises(HippoNavError, match="NaN or infinity"):
         window.add_keyframe(np.eye(4), ids, np.array([[np.nan, 1.0], [1.0, 1.0]]), right)
     with pytest.raises(HippoNavError, match="max_keyframes"):
-        _SlidingWindow(185.0, 185.0, 160.0, 48.0, 0.54, max_keyframes=1)
+        _SlidingWindow(185.0, 185.0, 160.0, 48.0, 0.54, json.dumps({"max_keyframes": 1}))
     with pytest.raises(HippoNavError, match="baseline"):
         _SlidingWindow(185.0, 185.0, 160.0, 48.0, -0.54)
     outcome = window.add_keyframe(np.eye(4), ids, left, right)
     assert outcome["reset"] and outcome["keyframes"] == 1 and len(window) == 1
     # Point 2 has no right-image match: no landmark, so no position.
     assert np.isfinite(outcome["point_camera"][0]).all() and np.isnan(outcome["point_camera"][1]).all()
+
+
+def test_the_window_settings_are_the_rust_params_with_its_defaults():
+    """`vo.window` crosses to Rust as the JSON of `hippo_vo::WindowParams`, whose `Default` is the one source:
+    every Rust field is a setting (the VO's `min_disparity_px` stands for the one the tracker shares)."""
+    from hippo_nav._defaults import rust_defaults
+
+    rust = rust_defaults("vo_window")
+    assert set(WindowConfig.model_fields) | {"min_disparity_px"} == set(rust)
+    for name, field in WindowConfig.model_fields.items():
+        assert field.default == rust[name], name
+    assert rust["right_sigma_px"] == 2.0  # measured: t_rel 1.03 % on the 05 render against 1.25 % at 1 px
+    sent = json.loads(VoParams().window_params_json())
+    assert sent == {**rust, "min_disparity_px": VoParams().min_disparity_px}
+
+
+def test_the_windows_own_check_names_the_setting_by_its_config_path(demo):
+    from hippo_nav._core import HippoNavError, _SlidingWindow
+
+    with pytest.raises(HippoNavError, match=r"vo\.window\.max_keyframes"):
+        _SlidingWindow(700.0, 700.0, 600.0, 180.0, 0.54, json.dumps({"max_keyframes": -1}))
+    with pytest.raises(HippoNavError, match=r"vo\.window.*unknown field `pixel_sigma`"):
+        _SlidingWindow(700.0, 700.0, 600.0, 180.0, 0.54, json.dumps({"pixel_sigma": 1.0}))
+
+
+def test_flat_window_keys_of_older_configs_read_as_the_window_section(caplog):
+    with caplog.at_level("WARNING", logger="hippo_nav.vo"):
+        old = VoParams.model_validate(
+            {"window_keyframes": 4, "window_right_sigma_px": 1.5, "window_min_shared": 12}
+        )
+    assert old == VoParams(window=WindowConfig(max_keyframes=4, right_sigma_px=1.5, min_shared_landmarks=12))
+    assert "vo.window_keyframes → vo.window.max_keyframes" in caplog.text

@@ -20,8 +20,9 @@ fn default_params_json(section: &str) -> PyResult<String> {
         "engine" => convert::params_to_json(&hippo_attractor::SpatialMemoryParams::default()),
         "map" => convert::params_to_json(&hippo_map::MapParams::default()),
         "views" => convert::params_to_json(&hippo_views::ViewCellParams::default()),
+        "vo_window" => convert::params_to_json(&hippo_vo::WindowParams::default()),
         other => Err(errors::HippoNavError::new_err(format!(
-            "no default parameters for {other:?}; sections: engine, map, views"
+            "no default parameters for {other:?}; sections: engine, map, views, vo_window"
         ))),
     }
 }

@@ -4,7 +4,7 @@
 //! (n,) int64, left pixels (n, 2) float64 and right-image columns (n,) float64 (NaN: no right match).
 //! The adjustment runs with the interpreter released. `_refine_matches` refines KLT matches with a warped
 //! window (`hippo_vo::tracks`); `_frame_offset` fits one frame's disparity offset (`hippo_vo::disparity`).
-use crate::convert::{flat_f64, rows_f64, to_numpy};
+use crate::convert::{flat_f64, rows_f64, section_from_json, to_numpy};
 use crate::errors::{to_py_err, HippoNavError};
 use hippo_vo::window::isometry_from_matrix;
 use hippo_vo::{
@@ -28,33 +28,18 @@ pub struct PySlidingWindow {
 #[pymethods]
 impl PySlidingWindow {
     #[new]
-    #[pyo3(signature = (fx, fy, cx, cy, baseline_m, max_keyframes=8, fixed_keyframes=0, pixel_sigma_px=1.0, right_sigma_px=1.0, iterations=6, min_shared_landmarks=20, min_disparity_px=1.0))]
-    #[allow(clippy::too_many_arguments)]
+    #[pyo3(signature = (fx, fy, cx, cy, baseline_m, params_json=None))]
     fn new(
         fx: f64,
         fy: f64,
         cx: f64,
         cy: f64,
         baseline_m: f64,
-        max_keyframes: usize,
-        fixed_keyframes: usize,
-        pixel_sigma_px: f64,
-        right_sigma_px: f64,
-        iterations: usize,
-        min_shared_landmarks: usize,
-        min_disparity_px: f64,
+        params_json: Option<&str>,
     ) -> PyResult<Self> {
         let camera = StereoCamera::new(fx, fy, cx, cy, baseline_m).map_err(to_py_err)?;
-        let params = WindowParams {
-            max_keyframes,
-            fixed_keyframes,
-            pixel_sigma_px,
-            right_sigma_px,
-            iterations,
-            min_shared_landmarks,
-            min_disparity_px,
-            ..WindowParams::default()
-        };
+        let params: WindowParams =
+            section_from_json(params_json, "window parameters", "vo.window")?;
         Ok(Self {
             inner: SlidingWindow::new(camera, params).map_err(to_py_err)?,
         })

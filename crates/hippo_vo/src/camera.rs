@@ -23,19 +23,19 @@ impl StereoCamera {
     pub fn new(fx: f64, fy: f64, cx: f64, cy: f64, baseline_m: f64) -> Result<Self> {
         for (name, value) in [("fx", fx), ("fy", fy), ("baseline_m", baseline_m)] {
             if !(value.is_finite() && value > 0.0) {
-                return Err(VoError::InvalidParameter {
+                return Err(VoError::BadParameter {
                     name,
-                    value,
-                    why: "must be finite and > 0 (check the calibration's P0 and P1)",
+                    value: value.to_string(),
+                    why: "must be finite and > 0 (check the calibration's P0 and P1)".to_string(),
                 });
             }
         }
         for (name, value) in [("cx", cx), ("cy", cy)] {
             if !value.is_finite() {
-                return Err(VoError::InvalidParameter {
+                return Err(VoError::BadParameter {
                     name,
-                    value,
-                    why: "must be finite",
+                    value: value.to_string(),
+                    why: "must be finite".to_string(),
                 });
             }
         }

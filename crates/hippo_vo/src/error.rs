@@ -6,13 +6,13 @@ use thiserror::Error;
 pub enum VoError {
     /// A parameter outside its range (the shape every core crate uses for parameter errors).
     #[error("invalid parameter `{name}` = {value}: {why}")]
-    InvalidParameter {
-        /// The parameter.
+    BadParameter {
+        /// The parameter, as the config names it.
         name: &'static str,
-        /// Its value.
-        value: f64,
+        /// Its value as given.
+        value: String,
         /// What it must be.
-        why: &'static str,
+        why: String,
     },
     /// A non-finite pose or pixel.
     #[error("{what} must be finite, got {value}; check the tracker's output")]

@@ -37,10 +37,10 @@ impl<'a> GrayImage<'a> {
     /// A view of `data` as a `width` × `height` image (row-major, `data.len() == width * height`).
     pub fn new(data: &'a [u8], width: usize, height: usize) -> Result<Self> {
         if width < 3 || height < 3 || data.len() != width * height {
-            return Err(VoError::InvalidParameter {
+            return Err(VoError::BadParameter {
                 name: "image",
-                value: data.len() as f64,
-                why: "must hold width × height bytes, at least 3 × 3",
+                value: data.len().to_string(),
+                why: "must hold width × height bytes, at least 3 × 3".to_string(),
             });
         }
         Ok(Self {
@@ -177,10 +177,10 @@ impl Default for RefineParams {
 impl RefineParams {
     fn check(&self) -> Result<()> {
         if !(1..=32).contains(&self.half_window_px) {
-            return Err(VoError::InvalidParameter {
+            return Err(VoError::BadParameter {
                 name: "half_window_px",
-                value: self.half_window_px as f64,
-                why: "must be in 1..=32",
+                value: self.half_window_px.to_string(),
+                why: "must be in 1..=32".to_string(),
             });
         }
         for (name, value) in [
@@ -189,10 +189,10 @@ impl RefineParams {
             ("max_deformation", self.max_deformation),
         ] {
             if !(value.is_finite() && value > 0.0) {
-                return Err(VoError::InvalidParameter {
+                return Err(VoError::BadParameter {
                     name,
-                    value,
-                    why: "must be finite and > 0",
+                    value: value.to_string(),
+                    why: "must be finite and > 0".to_string(),
                 });
             }
         }
@@ -213,10 +213,10 @@ pub fn refine_matches(
 ) -> Result<Vec<Option<[f64; 2]>>> {
     params.check()?;
     if points_a.len() != matched_b.len() {
-        return Err(VoError::InvalidParameter {
+        return Err(VoError::BadParameter {
             name: "matched_b",
-            value: matched_b.len() as f64,
-            why: "must hold one match per point",
+            value: matched_b.len().to_string(),
+            why: "must hold one match per point".to_string(),
         });
     }
     // Matches are independent, so the result does not depend on the number of threads. Two threads halve

@@ -33,7 +33,7 @@ import numpy as np
 from hippo_nav._core import HippoNavError
 from hippo_nav.closure.config import ClosureConfig
 from hippo_nav.closure.keyframes import DESCRIPTOR_BYTES, Keyframe
-from hippo_nav.geometry import planar_from_pose, wrap_angle
+from hippo_nav.geometry import planar_from_pose, skew, wrap_angle
 
 _GN_ITERATIONS = 10
 _MIN_REFINED_POINTS = 6
@@ -56,14 +56,6 @@ class LoopMeasurement:
         """Standard deviations (m, m, rad) of the planar measurement."""
         cov = np.linalg.inv(self.information)
         return tuple(float(np.sqrt(v)) for v in np.diag(cov))  # type: ignore[return-value]
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    s = np.zeros(v.shape[:-1] + (3, 3))
-    s[..., 0, 1], s[..., 0, 2] = -v[..., 2], v[..., 1]
-    s[..., 1, 0], s[..., 1, 2] = v[..., 2], -v[..., 0]
-    s[..., 2, 0], s[..., 2, 1] = -v[..., 1], v[..., 0]
-    return s
 
 
 def _perturbed(transform: np.ndarray, delta: np.ndarray) -> np.ndarray:
@@ -184,7 +176,7 @@ class LoopMeasurer:
         h_cur, j_cur = self._stereo_projection(points_cur)
         r_key, r_cur = h_key - seen_key, h_cur - seen_cur
         dx = np.zeros((len(points), 3, 6))
-        dx[:, :, :3] = -_skew(points_cur)
+        dx[:, :, :3] = -skew(points_cur)
         dx[:, :, 3:] = np.eye(3)
         j_pose = j_cur @ dx  # current observation w.r.t. the pose perturbation δ
         j_point = j_cur @ pose[:3, :3]  # current observation w.r.t. the key-frame point

@@ -1,7 +1,7 @@
 """The camera front end: frames loaded and their odometry measured ahead of the per-frame system.
 
 The odometry plug point: anything with `process(frame) -> step` stands in for the built-in stereo VO
-(`Pipeline(..., odometry=)`, or a name in `parts.ODOMETRIES`), where the step has
+(`Pipeline(..., odometry=)`, or a name in `vo.ODOMETRIES`), where the step has
 `camera_prev_from_camera_cur` (4×4 SE(3): the current camera's pose in the previous camera's frame,
 identity on the first frame) and `status` ("ok" when the step was measured and trusted, "first" on the
 first frame; anything else is flagged). Optional, read by `OdometryExtras.of`: `tracked_pixels` (the

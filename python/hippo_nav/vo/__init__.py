@@ -16,9 +16,10 @@ from collections.abc import Callable
 from hippo_nav.datasets.base import StereoCalibration
 from hippo_nav.plugs import Part
 from hippo_nav.vo.base import Odometry, OdometryStep
-from hippo_nav.vo.odometry import STATUSES, StereoOdometry, VoParams, VoStep, planar_step, planar_velocities
+from hippo_nav.vo.odometry import STATUSES, StereoOdometry, VoStep, planar_step, planar_velocities
 from hippo_nav.vo.replay import PoseFile, ReplayOdometry, read_pose_file, replay_odometry
 from hippo_nav.vo.run import run_odometry
+from hippo_nav.vo.settings import VoParams, WindowConfig
 
 OdometryFactory = Callable[..., Odometry]  # (its config section, the camera) → the odometry
 
@@ -41,6 +42,7 @@ __all__ = [
     "StereoOdometry",
     "VoParams",
     "VoStep",
+    "WindowConfig",
     "planar_step",
     "planar_velocities",
     "read_pose_file",
