@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import argparse
 import json
 import subprocess
 import sys
 
 import pytest
-from hippo_nav.cli import main
+from hippo_nav.cli import build_parser, main
 from hippo_nav.io import read_kitti_poses
 
 
@@ -102,6 +103,43 @@ def test_the_installed_command_runs_as_a_process(tmp_path):
         check=False,
     )
     assert done.returncode == 2 and "no such file or folder" in done.stderr
+
+
+def test_run_and_sweep_take_the_same_input_flags():
+    """One definition: the same dataset and loader flags with the same help; sweep's --sequence is its axis
+    and its --stride has no default of its own (a sweep file's stands)."""
+    sub = next(a for a in build_parser()._actions if isinstance(a, argparse._SubParsersAction))
+
+    def inputs(command: str) -> dict[str, tuple]:
+        parser = sub.choices[command]
+        group = next(g for g in parser._action_groups if g.title and g.title.startswith("input"))
+        loaders = [g for g in parser._action_groups if g.title == "loader options"]
+        actions = [a for g in [group, *loaders] for a in g._group_actions]
+        return {a.option_strings[0]: (a.dest, a.metavar, a.help, a.default) for a in actions}
+
+    run, sweep = inputs("run"), inputs("sweep")
+    assert "--sequence" in run and "--sequence" not in sweep
+    assert run.pop("--stride")[3] == 1 and sweep.pop("--stride")[3] is None
+    del run["--sequence"]
+    assert run == sweep
+    assert {
+        "--dataset",
+        "--dataset-kind",
+        "--start",
+        "--stop",
+        "--cameras",
+        "--left-topic",
+        "--topics",
+    } <= set(run)
+
+
+@pytest.mark.parametrize("command", ["run", "sweep"])
+def test_two_dataset_paths_are_refused_naming_both_spellings(tmp_path, capsys, command):
+    args = [command, "--dataset", str(tmp_path), "--kitti", str(tmp_path), "--out", str(tmp_path / "x")]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "give one dataset path: --dataset and --kitti name the same option" in err
+    assert len(err.strip().splitlines()) == 1 and not (tmp_path / "x").exists()
 
 
 @pytest.mark.data

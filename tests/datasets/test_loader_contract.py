@@ -9,12 +9,21 @@ from pathlib import Path
 import numpy as np
 import pytest
 from hippo_nav.cli import build_parser, main
-from hippo_nav.datasets import LOADERS, DatasetExtras, KittiOdometry, StereoLoader, open_dataset
+from hippo_nav.datasets import (
+    LOADERS,
+    DatasetError,
+    DatasetExtras,
+    KittiOdometry,
+    LoaderFlag,
+    StereoFrame,
+    StereoLoader,
+    open_dataset,
+)
 
 
-def _run_options(parser: argparse.ArgumentParser) -> dict[str, argparse.Action]:
+def _run_options(parser: argparse.ArgumentParser, command: str = "run") -> dict[str, argparse.Action]:
     sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-    return {flag: action for action in sub.choices["run"]._actions for flag in action.option_strings}
+    return {flag: action for action in sub.choices[command]._actions for flag in action.option_strings}
 
 
 def test_every_registered_loader_follows_the_contract():
@@ -66,6 +75,60 @@ def test_the_command_line_derives_its_choices_from_the_registry(monkeypatch, tmp
     folder.mkdir()
     assert main(["run", "--dataset", str(folder), "--dataset-kind", "folder", "--left-topic", "/l"]) == 2
     assert "--left-topic: only for ROS bags or dummy datasets" in capsys.readouterr().err
+
+
+def test_a_loaders_declared_flags_become_run_and_sweep_options(monkeypatch, tmp_path: Path, capsys):
+    """A loader that declares `FLAGS` gets them as `run` and `sweep` flags and sweep-file keys, with no
+    change to the command line: the option reaches the loader's constructor."""
+    opened_with: list[str | None] = []
+
+    class Exposed(StereoLoader):
+        KIND, TITLE, LAYOUT = "exposed", "exposed datasets", "for an exposed dataset the folder"
+        OPTIONS = ("start", "stop", "stride", "exposure_ms")
+        FLAGS = (LoaderFlag("exposure_ms", "MS", "exposure time (default: the camera's)"),)
+
+        def __init__(self, root, sequence, start=None, stop=None, stride=1, exposure_ms=None) -> None:
+            super().__init__(stride)
+            opened_with.append(exposure_ms)
+            raise DatasetError(f"{root}: opened with exposure_ms={exposure_ms}")
+
+        @staticmethod
+        def detect(path: Path) -> bool:
+            return path.name == "exposed"
+
+        def _frame(self, i: int) -> StereoFrame:
+            raise AssertionError("never read")
+
+    for loader in LOADERS.values():  # the contract: a loader's flags are among its options
+        assert {flag.keyword for flag in loader.FLAGS} <= set(loader.OPTIONS), loader.KIND
+    assert LoaderFlag("left_topic", "TOPIC", "").flag == "--left-topic"
+    monkeypatch.setitem(LOADERS, "exposed", Exposed)
+    parser = build_parser()
+    for command in ("run", "sweep"):
+        action = _run_options(parser, command)["--exposure-ms"]
+        assert (action.dest, action.metavar) == ("exposure_ms", "MS")
+        assert action.help == "exposed: exposure time (default: the camera's)"
+    folder = tmp_path / "exposed"
+    folder.mkdir()
+    # run: the flag reaches the loader, and is refused for a kind that does not take it.
+    assert main(["run", "--dataset", str(folder), "--exposure-ms", "4", "--out", str(tmp_path / "r")]) == 2
+    assert opened_with == ["4"] and "opened with exposure_ms=4" in capsys.readouterr().err
+    assert main(["run", "--dataset", str(folder), "--dataset-kind", "folder", "--exposure-ms", "4"]) == 2
+    assert "--exposure-ms: only for exposed datasets; " in capsys.readouterr().err
+    # sweep: the flag and a sweep file's key of the same name reach every run's dataset input.
+    import hippo_nav.sweep
+
+    spaces = []
+    build_space = hippo_nav.sweep.build_space
+    monkeypatch.setattr(
+        hippo_nav.sweep, "build_space", lambda *a, **kw: spaces.append(build_space(*a, **kw)) or spaces[-1]
+    )
+    sweep_file = tmp_path / "sweep.toml"
+    sweep_file.write_text(f'dataset = "{folder.as_posix()}"\nexposure_ms = 5\nseeds = "0-1"\n')
+    for flags, value in (([], "5"), (["--exposure-ms", "7"], "7")):
+        args = ["sweep", str(sweep_file), *flags, "--dry-run", "--out", str(tmp_path / "s")]
+        assert main(args) == 0
+        assert spaces[-1].dataset.options == (("exposure_ms", value),) and len(spaces[-1].runs()) == 2
 
 
 def test_open_dataset_takes_the_loaders_default_sequence(rendered: KittiOdometry):

@@ -128,15 +128,15 @@ def test_the_odometry_uses_the_refined_matches_only_when_asked(monkeypatch):
     refines both the tracks (affine) and the stereo matches (row shear)."""
     dataset = KittiOdometry(demo_sequence(), DEMO_SEQUENCE)
     calls: list[str] = []
-    from hippo_nav.vo import odometry
+    from hippo_nav.vo import matching
 
-    real = odometry._refine_matches
+    real = matching._refine_matches
 
     def spy(*args, **kwargs):
         calls.append(args[4])
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(odometry, "_refine_matches", spy)
+    monkeypatch.setattr(matching, "_refine_matches", spy)
     for params, expected in ((VoParams(refine_matches=False), set()), (VoParams(), {"affine", "row_shear"})):
         calls.clear()
         vo = StereoOdometry(dataset.calibration, params)

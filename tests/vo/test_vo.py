@@ -11,6 +11,7 @@ from hippo_nav.datasets import KittiOdometry, StereoFrame
 from hippo_nav.metrics import relative_errors_kitti
 from hippo_nav.synthetic import planar_poses
 from hippo_nav.vo import StereoOdometry, VoParams, WindowConfig, planar_step, run_odometry
+from hippo_nav.vo.matching import ImageMatcher
 
 SHORT_LENGTHS_M = (10.0, 20.0, 30.0, 40.0, 50.0)
 
@@ -297,11 +298,11 @@ def test_the_backward_checks_take_their_own_window_and_reject_a_wrong_track(
         windows.append(tuple(kwargs["winSize"]))
         return real(*args, **kwargs)
 
-    vo = StereoOdometry(demo.calibration, VoParams(klt_check_window_px=check_window_px))
+    match = ImageMatcher(demo.calibration, VoParams(klt_check_window_px=check_window_px))
     monkeypatch.setattr(cv2, "calcOpticalFlowPyrLK", spy)
     assert len(pts) > 50
-    assert vo._track_back(b, a, tracked, pts).mean() > 0.8
-    assert vo._track_back(b, a, wrong, pts).mean() < 0.1
+    assert match.track_back(b, a, tracked, pts).mean() > 0.8
+    assert match.track_back(b, a, wrong, pts).mean() < 0.1
     assert windows == [(expected_px, expected_px)] * 2
 
 
@@ -312,8 +313,8 @@ def test_the_backward_checks_take_nine_pixels_on_images_from_640_px_wide(demo):
 
     def check_px(width_px, check_window_px):
         calibration = dataclasses.replace(demo.calibration, image_size_px=(width_px, width_px * 3 // 10))
-        vo = StereoOdometry(calibration, VoParams(klt_check_window_px=check_window_px))
-        return vo._klt_check["winSize"][0], vo._klt_short["winSize"][0]
+        match = ImageMatcher(calibration, VoParams(klt_check_window_px=check_window_px))
+        return match.klt_check["winSize"][0], match.klt_short["winSize"][0]
 
     assert check_px(320, None) == (13, 13)
     assert check_px(639, None) == (15, 15)
@@ -329,18 +330,18 @@ def test_new_corners_are_spread_over_buckets_when_there_is_no_room_for_all(demo)
     corners are the same as without buckets."""
     image = demo[5].left
     none = np.zeros((0, 2), np.float32)
-    plain = StereoOdometry(demo.calibration, VoParams(corner_bucket_px=0))
-    spread = StereoOdometry(demo.calibration, VoParams(corner_bucket_px=32))
-    everything = plain._detect(image, 10_000, none)
-    np.testing.assert_array_equal(spread._detect(image, 10_000, none), everything)
+    plain = ImageMatcher(demo.calibration, VoParams(corner_bucket_px=0))
+    spread = ImageMatcher(demo.calibration, VoParams(corner_bucket_px=32))
+    everything = plain.detect(image, 10_000, none)
+    np.testing.assert_array_equal(spread.detect(image, 10_000, none), everything)
 
     def buckets(xy):
         return set(zip((xy[:, 0] // 32).astype(int), (xy[:, 1] // 32).astype(int), strict=True))
 
     occupied = buckets(everything)
     wanted = len(occupied)
-    chosen = spread._detect(image, wanted, none)
-    strongest = plain._detect(image, wanted, none)
+    chosen = spread.detect(image, wanted, none)
+    strongest = plain.detect(image, wanted, none)
     assert len(chosen) == wanted and buckets(chosen) == occupied  # one corner in every square
     assert len(buckets(strongest)) < len(occupied)  # the strongest overall leave squares empty
     # Within each square the one chosen is its strongest.

@@ -573,22 +573,14 @@ class BirdsEyeSearch:
         # Where the agent may be: the loop gate, but no farther than the odometry's own likely drift
         # (`search_m`): the search is one correlation over that whole area, not a few candidates.
         search_m = min(radius_m, cfg.search_m)
-        # Structure farther than this from the newest vertex cannot meet the query's at any shift searched.
-        reach_m = search_m + cfg.radius_m
         here = experience_map.world_from_agent
         if here is None:
             return (*none, "")
-        # Old enough: its structure cannot overlap the query's own stretch of path.
-        separation_m = max(self._min_separation_m(experience_map), cfg.submap_m + 2 * cfg.max_depth_m)
-        near = experience_map.vertices_near(reach_m + cfg.max_depth_m, planar_step)
-        old = np.array([v for v in near if path_m[newest] - path_m[v] >= separation_m], np.int64)
-        if not len(old):
-            return (*none, "birdseye_no_candidate")
-        # The map's structure there, in the newest vertex's frame: the identity is where the odometry puts the
-        # query, and the registration says how far the map has drifted from it.
-        region = submap(poses[newest], poses[old], [self._points(int(u), keyframe_of) for u in old], reach_m)
-        if len(region) < cfg.min_points:
-            return (*none, "birdseye_few_points")
+        old, region, why = self._old_structure(
+            experience_map, planar_step, poses, path_m, search_m, keyframe_of
+        )
+        if region is None:
+            return (*none, why)
         prior = (np.zeros(3), search_m, min(yaw_rad, cfg.search_rad))
         yaw_found, shift_found, ratio = _coarse(
             query.points_m,
@@ -621,19 +613,35 @@ class BirdsEyeSearch:
             return (*none, "birdseye_ambiguous")
         if distance.min() > _OFF_PATH_M:
             return (*none, "birdseye_off_path")
+        measured, why = self._register_onto(
+            w, at, query, (poses, path_m, keyframe_of), (agent, odometer), max_distance_m
+        )
+        if measured is None:
+            return (*none, why)
+        return (w, *measured, "measured")
+
+    def _register_onto(self, w: int, at: np.ndarray, query: Submap, path, agent_at, max_distance_m: float):
+        """((agent_from_target, information), "measured") of the query registered onto vertex `w`'s own submap,
+        starting from where the search put it (`at`), or (None, why not). `path`: the map's vertex poses, path
+        length and keyframes; `agent_at`: where the odometry puts the agent in the map, and the odometer."""
+        cfg = self.config
+        poses, path_m, keyframe_of = path
+        agent, odometer = agent_at
+        newest = len(poses) - 1
+        agent_from_newest = se2_between(agent, poses[newest])
         half = 0.5 * cfg.submap_m
         target = self._submap(w, -half, half, poses, path_m, keyframe_of)
         local_prior = (se2_between(poses[w], at), _LOCAL_REACH_M, _LOCAL_REACH_RAD)
         registration, why = register(query, target, cfg, local_prior)
         if registration is None:
-            return (*none, why)
+            return None, why
         w_from_newest = np.array(registration.target_from_query)
         agent_from_target, information = _agent_from_target(
             agent_from_newest, w_from_newest, registration.information
         )
         # As for every metric closure (`closure.max_distance_m`): a link longer than this joins places.
         if np.hypot(agent_from_target[0], agent_from_target[1]) > max_distance_m:
-            return (*none, "birdseye_far")
+            return None, "birdseye_far"
         log.debug(
             "vertex %d: bird's-eye registration onto %d: %s (inliers %d, overlap %.2f, peak ratio %.2f)",
             newest,
@@ -644,8 +652,27 @@ class BirdsEyeSearch:
             registration.peak_ratio,
         )
         if cfg.confirm and not self._confirmed(odometer, poses[w], agent_from_target, agent):
-            return (*none, "birdseye_unconfirmed")
-        return w, agent_from_target, information, "measured"
+            return None, "birdseye_unconfirmed"
+        return (agent_from_target, information), "measured"
+
+    def _old_structure(self, experience_map, planar_step, poses, path_m, search_m: float, keyframe_of):
+        """(the old vertices within reach, the map's structure around them in the newest vertex's frame, "")
+        or (…, None, why not). The identity of that frame is where the odometry puts the query; the
+        registration says how far the map has drifted from it."""
+        cfg = self.config
+        newest = len(poses) - 1
+        # Structure farther than this from the newest vertex cannot meet the query's at any shift searched.
+        reach_m = search_m + cfg.radius_m
+        # Old enough: its structure cannot overlap the query's own stretch of path.
+        separation_m = max(self._min_separation_m(experience_map), cfg.submap_m + 2 * cfg.max_depth_m)
+        near = experience_map.vertices_near(reach_m + cfg.max_depth_m, planar_step)
+        old = np.array([v for v in near if path_m[newest] - path_m[v] >= separation_m], np.int64)
+        if not len(old):
+            return old, None, "birdseye_no_candidate"
+        region = submap(poses[newest], poses[old], [self._points(int(u), keyframe_of) for u in old], reach_m)
+        if len(region) < cfg.min_points:
+            return old, None, "birdseye_few_points"
+        return old, region, ""
 
     def _min_separation_m(self, experience_map) -> float:
         if self._separation_m is None:

@@ -1,9 +1,10 @@
 """Stereo datasets: a small protocol (`StereoDataset`) and a registry with one loader file per dataset.
 
 Adding a dataset = one module with a `StereoLoader` subclass (`base.py`: its class attributes `KIND`,
-`TITLE`, `LAYOUT`, `OPTIONS`, `DEFAULT_SEQUENCE`, a static `detect(path)`, a constructor
+`TITLE`, `LAYOUT`, `OPTIONS`, `FLAGS`, `DEFAULT_SEQUENCE`, a static `detect(path)`, a constructor
 `Loader(root, sequence, **options)` and `_frame(i)`), plus its class in `LOADERS` below; the CLI's
-`--dataset-kind` choices and its loader-option checks follow from the registry (docs/architecture.md).
+`--dataset-kind` choices, its loader-option flags (each loader's `FLAGS`, in `run` and `sweep`) and its
+loader-option checks follow from the registry (docs/architecture.md).
 `open_dataset(path, sequence)` picks the loader by name (`kind=`) or by detecting the layout, in the order
 of `LOADERS`:
 
@@ -22,6 +23,7 @@ from typing import Any
 
 from hippo_nav.datasets.base import (
     DatasetExtras,
+    LoaderFlag,
     StereoCalibration,
     StereoDataset,
     StereoFrame,
@@ -93,6 +95,7 @@ __all__ = [
     "DatasetExtras",
     "EurocStereo",
     "KittiOdometry",
+    "LoaderFlag",
     "RosbagStereo",
     "StereoCalibration",
     "StereoDataset",

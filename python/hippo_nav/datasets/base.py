@@ -5,8 +5,9 @@
   frames, …), with their defaults; `DatasetExtras.of(dataset)` is the one place they are read.
 - `StereoLoader`: the base class of the registered loaders (`hippo_nav.datasets.LOADERS`). Its class
   attributes are the contract `open_dataset` and the CLI read: `KIND` (the name), `TITLE` and `LAYOUT` (for
-  messages), `OPTIONS` (the keywords its constructor takes besides root and sequence),
-  `DEFAULT_SEQUENCE`; a static `detect(path)` recognises its layout; the constructor is
+  messages), `OPTIONS` (the keywords its constructor takes besides root and sequence), `FLAGS` (the
+  `LoaderFlag`s: those of its options the command line offers as flags, `--left-topic` for `left_topic`, in
+  `hippo-nav run` and `hippo-nav sweep` and as sweep-file keys), `DEFAULT_SEQUENCE`; a static `detect(path)` recognises its layout; the constructor is
   `Loader(root, sequence, **options)`. The base owns the shared skeleton: the extras with their defaults,
   length, bounds-checked indexing (a subclass reads frame i in `_frame(i)`), iteration, ground truth.
 
@@ -149,6 +150,22 @@ def check_calibration(calibration: StereoCalibration, where: str) -> StereoCalib
 
 
 @dataclass(frozen=True)
+class LoaderFlag:
+    """A loader option offered on the command line: `keyword` (one of the loader's `OPTIONS`) becomes the
+    flag `--keyword` (underscores as dashes) of `hippo-nav run` and `hippo-nav sweep` and a sweep-file key;
+    `metavar` and `help` are its help (the CLI puts the kinds of the loaders that take it in front)."""
+
+    keyword: str
+    metavar: str
+    help: str
+
+    @property
+    def flag(self) -> str:
+        """The command-line flag: `--left-topic` for `left_topic`."""
+        return "--" + self.keyword.replace("_", "-")
+
+
+@dataclass(frozen=True)
 class StereoFrame:
     """One rectified stereo pair; `index` is the frame number in the sequence (file name NNNNNN)."""
 
@@ -214,6 +231,9 @@ class StereoLoader(ABC):
     """Which path to give it, for the error when no loader recognises a path."""
     OPTIONS: ClassVar[tuple[str, ...]] = ("start", "stop", "stride")
     """The keywords the constructor takes besides root and sequence."""
+    FLAGS: ClassVar[tuple[LoaderFlag, ...]] = ()
+    """Those of `OPTIONS` the command line offers as flags (`LoaderFlag`); the first loader in `LOADERS`
+    to declare a keyword gives its flag's metavar and help."""
     DEFAULT_SEQUENCE: ClassVar[str | None] = None
     """The sequence opened when none is named."""
 

@@ -38,7 +38,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from hippo_nav.datasets.base import StereoCalibration, StereoFrame, StereoLoader, check_calibration
+from hippo_nav.datasets.base import (
+    LoaderFlag,
+    StereoCalibration,
+    StereoFrame,
+    StereoLoader,
+    check_calibration,
+)
 from hippo_nav.datasets.common import read_image_file
 from hippo_nav.io.errors import MAX_SETTINGS_FILE_BYTES, DatasetError, file_error, read_text
 from hippo_nav.io.poses import read_kitti_poses
@@ -175,6 +181,14 @@ class KittiOdometry(StereoLoader):
     TITLE = "KITTI odometry roots"
     LAYOUT = "for KITTI pass the folder that holds sequences/ and poses/"
     OPTIONS = ("start", "stop", "stride", "available_only", "cameras")
+    FLAGS = (
+        LoaderFlag(
+            "cameras",
+            "{gray,color}",
+            "the stereo pair: gray (image_0, image_1) or color (image_2, image_3, read as gray) "
+            "(default: gray where its folders exist, else color)",
+        ),
+    )
     DEFAULT_SEQUENCE = "00"
 
     def __init__(

@@ -40,7 +40,13 @@ from typing import Any
 import cv2
 import numpy as np
 
-from hippo_nav.datasets.base import StereoCalibration, StereoFrame, StereoLoader, check_calibration
+from hippo_nav.datasets.base import (
+    LoaderFlag,
+    StereoCalibration,
+    StereoFrame,
+    StereoLoader,
+    check_calibration,
+)
 from hippo_nav.datasets.common import (
     FrameSelection,
     check_increasing,
@@ -152,6 +158,16 @@ class RosbagStereo(StereoLoader):
     TITLE = "ROS bags"
     LAYOUT = "for a ROS bag the .bag file or ROS 2 bag folder"
     OPTIONS = ("start", "stop", "stride", "topics", "trim_to_ground_truth", *SETTINGS)
+    FLAGS = (
+        LoaderFlag("left_topic", "TOPIC", "left image topic (sensor_msgs/Image) (default: guessed)"),
+        LoaderFlag("right_topic", "TOPIC", "right image topic (default: guessed)"),
+        LoaderFlag(
+            "topics",
+            "YAML",
+            "YAML with left_topic, right_topic and the calibration (CameraInfo topics, or fx, fy, cx, cy, "
+            "baseline_m); flags win over it (default: none)",
+        ),
+    )
 
     def __init__(
         self,

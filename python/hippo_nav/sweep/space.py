@@ -13,11 +13,11 @@ Axes (each a list of values; a run takes one value of every axis, the runs are t
   `run --odometry FILE` (in a sweep file a table `{file = "…", align = "start", format = "kitti"}`).
 
 A sweep file (TOML or YAML) holds the dataset flags of `run` (`dataset`, `dataset_kind`, `start`, `stop`,
-`stride`, loader options), a base config (`config_file = "base.json"` and/or a `[config]` table of sections,
-which wins), the
-default results folder (`out`), and the axes: at the top level for one cross-product, or in `[[space]]`
-tables for a union of cross-products (axes left out of a table take the top-level ones). Relative paths are
-taken from the current folder and written into the manifests as absolute paths.
+`stride`, and the loader options the loaders declare in `FLAGS`), a base config (`config_file =
+"base.json"` and/or a `[config]` table of sections, which wins), the default results folder (`out`), and
+the axes: at the top level for one cross-product, or in `[[space]]` tables for a union of cross-products
+(axes left out of a table take the top-level ones). Relative paths are taken from the current folder and
+written into the manifests as absolute paths.
 
 A run's id is a readable slug of its axis values and 8 hex digits of the SHA-256 of everything that makes the
 run (dataset, range, sequence, odometry, lesion, seed, overrides), so the same space always gives the same ids
@@ -47,12 +47,27 @@ MAX_SEED = 2**31 - 1
 LESION_MODULES = ("ventral", "intermediate", "dorsal")
 AXES = ("set", "seeds", "lesion", "sequence", "odometry")
 """The axes a sweep file or the command line may give."""
-LOADER_OPTION_KEYS = ("left_topic", "right_topic", "topics", "cameras")
-"""Loader options a sweep passes on (`StereoLoader.OPTIONS`; the command line's `cli.LOADER_FLAGS`)."""
-DATASET_KEYS = ("dataset", "dataset_kind", "start", "stop", "stride", *LOADER_OPTION_KEYS)
-FILE_KEYS = {*AXES, *DATASET_KEYS, "config", "config_file", "out", "space"}
 SLUG_MAX_CHARS = 72
 _KEY = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*(\.[A-Za-z_][A-Za-z0-9_]*)*$")
+
+
+def loader_option_keys() -> tuple[str, ...]:
+    """The loader options a sweep passes on: the keywords of every registered loader's `FLAGS` (the flags
+    of `hippo-nav run` and `hippo-nav sweep`), in registry order."""
+    from hippo_nav.datasets import LOADERS
+
+    keys = (flag.keyword for loader in LOADERS.values() for flag in loader.FLAGS)
+    return tuple(dict.fromkeys(keys))
+
+
+def dataset_keys() -> tuple[str, ...]:
+    """The dataset flags of `run` a sweep file or the command line may give."""
+    return ("dataset", "dataset_kind", "start", "stop", "stride", *loader_option_keys())
+
+
+def file_keys() -> set[str]:
+    """The keys a sweep file may hold."""
+    return {*AXES, *dataset_keys(), "config", "config_file", "out", "space"}
 
 
 @dataclass(frozen=True)
@@ -403,13 +418,12 @@ def read_sweep_file(path: str | Path) -> dict[str, Any]:
             raise HippoNavError(f"{path}: not valid YAML ({str(err).splitlines()[0]})") from None
     else:
         raise HippoNavError(f"{path}: a sweep file ends in .toml, .yaml or .yml")
+    keys = file_keys()
     if not isinstance(data, dict):
-        raise HippoNavError(f"{path}: a sweep file holds one table of keys ({', '.join(sorted(FILE_KEYS))})")
-    unknown = sorted(set(data) - FILE_KEYS)
+        raise HippoNavError(f"{path}: a sweep file holds one table of keys ({', '.join(sorted(keys))})")
+    unknown = sorted(set(data) - keys)
     if unknown:
-        raise HippoNavError(
-            f"{path}: unknown keys {unknown}; a sweep file takes {', '.join(sorted(FILE_KEYS))}"
-        )
+        raise HippoNavError(f"{path}: unknown keys {unknown}; a sweep file takes {', '.join(sorted(keys))}")
     return data
 
 
@@ -461,11 +475,11 @@ def build_space(
 ) -> SweepSpace:
     """The space of `hippo-nav sweep`: the file's (if any), with the command line's axes replacing the file's
     axes of the same name in every cross-product and its dataset flags (`dataset`: the keys of
-    `DATASET_KEYS` that were given) replacing the file's. `no_figures`: the base config without figures."""
+    `dataset_keys()` that were given) replacing the file's. `no_figures`: the base config without figures."""
     data = read_sweep_file(file) if file is not None else {}
     odometry_flags = {"file_format": odometry_format, "align": odometry_align}
     given = {k: v for k, v in (dataset or {}).items() if v is not None}
-    flags = {k: data[k] for k in DATASET_KEYS if k in data} | given
+    flags = {k: data[k] for k in dataset_keys() if k in data} | given
     dataset_input = _dataset_input(flags)
     swept = sequences is not None or "sequence" in data or any("sequence" in b for b in _space_tables(data))
     if swept and dataset_input.path is None:
@@ -541,7 +555,7 @@ def _dataset_input(flags: dict[str, Any]) -> DatasetInput:
     kind = flags.get("dataset_kind")
     if kind is not None and kind not in LOADERS:
         raise HippoNavError(f"dataset_kind {kind!r}: choose from {', '.join(LOADERS)}")
-    options = {k: str(flags[k]) for k in LOADER_OPTION_KEYS if flags.get(k) is not None}
+    options = {k: str(flags[k]) for k in loader_option_keys() if flags.get(k) is not None}
     if "topics" in options:
         options["topics"] = str(_absolute(options["topics"]))
     if path is None and (kind is not None or options):

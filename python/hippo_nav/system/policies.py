@@ -86,7 +86,7 @@ class ViewRecall:
         return cells
 
     def observe(
-        self, description: Any, planar_step: Sequence[float], experience_map: ExperienceMap, position: int
+        self, description: object, planar_step: Sequence[float], experience_map: ExperienceMap, position: int
     ) -> ViewObservation:
         """Match this frame (run position `position`) and track which cell is active."""
         odometer_m = experience_map.odometer_m + float(np.hypot(planar_step[0], planar_step[1]))

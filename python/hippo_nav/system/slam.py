@@ -50,7 +50,7 @@ from hippo_nav._core import HippoNavError
 from hippo_nav.closure import NO_ATTEMPT, ClosureAttempt, ClosureChain
 from hippo_nav.datasets.base import StereoCalibration, StereoFrame
 from hippo_nav.engine import SpatialMemory, SpatialReadout
-from hippo_nav.geometry import planar_from_pose, planar_step, se2_between, se2_compose
+from hippo_nav.geometry import planar_from_pose, se2_between, se2_compose
 from hippo_nav.map import ClosureMode, ExperienceMap, MapFrameOutcome, new_experience_map
 from hippo_nav.memory import SavedMemory, check_compatible
 from hippo_nav.plugs import Persistent
@@ -168,7 +168,7 @@ class SlamSystem:
         camera_prev_from_camera_cur: np.ndarray,
         vo_status: str = "ok",
         *,
-        view_description: Any = None,
+        view_description: object = None,
         disparity_offset_px: float | None = None,
         worker: Worker = INLINE,
         timer: StageTimer | None = None,
@@ -190,7 +190,7 @@ class SlamSystem:
         timer.lap("engine")
         outcome, note = self._experience_map(frame, motion, obs, attempt, readout, worker)
         timer.lap("map")
-        record = self._record(frame, step, motion, vo_status, obs, strength, readout, limited, outcome, note)
+        record = self._record(frame, motion, vo_status, obs, strength, readout, limited, outcome, note)
         self.frames += 1
         self.map_revision += 1
         self._last_frame_index = int(frame.index)
@@ -208,7 +208,7 @@ class SlamSystem:
         planar_step_map = (float(planar[0]), float(planar[1]), float(planar[2]))
         return _Motion(planar_step_map, dt_s, self._data_flags(frame, dt_s))
 
-    def _views(self, frame: StereoFrame, motion: _Motion, description: Any) -> ViewObservation:
+    def _views(self, frame: StereoFrame, motion: _Motion, description: object) -> ViewObservation:
         """2. Local view cells: which view, and what (if anything) it recalls."""
         if description is None:
             description = self.view_cells.describe(frame)
@@ -276,7 +276,6 @@ class SlamSystem:
     def _record(
         self,
         frame: StereoFrame,
-        step: np.ndarray,
         motion: _Motion,
         vo_status: str,
         obs: ViewObservation,
@@ -287,7 +286,7 @@ class SlamSystem:
         note: str,
     ) -> FrameRecord:
         """6. What was decided, as the frame's record."""
-        online_pose, vertex_from_agent = self._online_pose(outcome, step)
+        online_pose, vertex_from_agent = self._online_pose(outcome, motion.planar_step)
         return FrameRecord(
             frame_index=int(frame.index),
             timestamp_s=float(frame.timestamp_s),
@@ -480,11 +479,13 @@ class SlamSystem:
             self._last_code = (float(bump.mean_rad[0]), float(bump.mean_rad[1]))
         return self._last_code
 
-    def _online_pose(self, outcome: MapFrameOutcome, step: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def _online_pose(
+        self, outcome: MapFrameOutcome, planar_step_map: tuple[float, float, float]
+    ) -> tuple[np.ndarray, np.ndarray]:
         """The map's agent pose and its offset from the current vertex; while lost (relocalising), the pose
         dead-reckoned from the last online pose and no offset (NaN)."""
         if outcome.world_from_agent is None:
-            return se2_compose(self._last_online_pose, np.array(planar_step(step))), np.full(3, np.nan)
+            return se2_compose(self._last_online_pose, np.array(planar_step_map)), np.full(3, np.nan)
         return np.array(outcome.world_from_agent), np.array(outcome.vertex_from_agent)
 
 

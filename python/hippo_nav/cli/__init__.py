@@ -1,0 +1,70 @@
+"""Command line: `hippo-nav run` (the main job: the SLAM pipeline), `hippo-nav render` (a synthetic stereo
+street along a KITTI ground truth), `hippo-nav figures` (the paper's theory figures, or with --appearance
+the synthetic street at each appearance level), `hippo-nav vocabulary` (the word view cells' vocabulary,
+trained on a folder of images or remade from the renders), `hippo-nav sweep` (many runs over a cross-product
+of settings, on Ray) and `hippo-nav report` (one table and figures over sweeps and runs).
+
+Exit codes: 0 done; 2 bad input (one line on stderr saying what to fix; nothing is processed) or a frame
+that cannot be read mid-run (the results of the frames before it are written); 130 interrupted by Ctrl-C,
+143 by SIGTERM, 129 by SIGHUP (128 + the signal number; the results of the frames processed so far are
+written)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Callable
+from types import ModuleType
+
+from hippo_nav.cli import figures, render, report, run, sweep, vocabulary
+
+_COMMANDS: dict[str, ModuleType] = {
+    "run": run,
+    "render": render,
+    "figures": figures,
+    "vocabulary": vocabulary,
+    "sweep": sweep,
+    "report": report,
+}
+"""The commands in the order of the help, each a module with `add_parser(sub)` and `command(args) -> int`."""
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="hippo-nav", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--version", action="version", version=f"hippo-nav {_version()}")
+    sub = parser.add_subparsers(dest="command", required=True)
+    for module in _COMMANDS.values():
+        module.add_parser(sub)
+    return parser
+
+
+def _version() -> str:
+    from hippo_nav._core import __version__
+
+    return __version__
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    import logging
+
+    from hippo_nav._core import HippoNavError
+
+    # Per-frame warnings (VO failures, clamped motion) go to stderr, one line each.
+    logging.basicConfig(level=logging.WARNING, format="hippo-nav: %(message)s")
+
+    command: Callable[[argparse.Namespace], int] = _COMMANDS[args.command].command
+    try:
+        return command(args)
+    except (HippoNavError, OSError) as err:
+        # Bad input: one line saying what to fix. Anything else is a bug and keeps its traceback.
+        print(f"hippo-nav: error: {err}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:  # before the pipeline started (e.g. while rendering the demo)
+        print("hippo-nav: interrupted", file=sys.stderr)
+        return 130
+
+
+__all__ = ["build_parser", "main"]

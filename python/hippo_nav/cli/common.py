@@ -1,0 +1,162 @@
+"""What the commands share: the help formatter, the input flags of `run` and `sweep` (one definition), the
+loader options they take (declared by the loaders, `StereoLoader.FLAGS`), and the exit codes of signals."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from hippo_nav.datasets import LoaderFlag
+
+MAX_SEED = 2**31 - 1
+"""Seeds reach OpenCV's RNG, which takes a 32-bit signed integer."""
+
+SIGNAL_EXIT = {"SIGINT": 130, "SIGHUP": 129, "SIGTERM": 143}
+"""The exit code of a run stopped by a signal: 128 + the signal number."""
+
+
+class HelpFormatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
+    """Every option's help ends with its default: "(default: …)" from argparse, unless the help already says
+    what the default is (options whose default is None say it in words)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        help_text = action.help or ""
+        if "default" in help_text.lower() or action.default is argparse.SUPPRESS:
+            return help_text
+        if action.required:
+            return help_text + " (required)"
+        if action.default is None:
+            return help_text + " (default: none)"
+        if action.default is False and action.nargs == 0:
+            return help_text + " (default: off)"
+        if action.default == []:
+            return help_text + " (default: none)"
+        return super()._get_help_string(action) or help_text
+
+
+class _DatasetPath(argparse.Action):
+    """`--dataset PATH` (also spelt `--kitti`): remembers which spelling was used, and every use, so that
+    a message can name the flag typed and two paths are refused rather than one silently winning."""
+
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: object,
+        option: str | None = None,
+    ) -> None:
+        namespace.dataset = values
+        namespace.dataset_flags = [*getattr(namespace, "dataset_flags", []), str(option)]
+
+
+def loader_flags() -> dict[str, LoaderFlag]:
+    """The loader options offered as flags, by keyword: every registered loader's `FLAGS`, in registry
+    order (the first loader to declare a keyword gives its metavar and help)."""
+    from hippo_nav.datasets import LOADERS
+
+    flags: dict[str, LoaderFlag] = {}
+    for loader in LOADERS.values():
+        for flag in loader.FLAGS:
+            flags.setdefault(flag.keyword, flag)
+    return flags
+
+
+def loaders_taking(option: str) -> list[str]:
+    """The kinds of the registered loaders whose `OPTIONS` include `option`."""
+    from hippo_nav.datasets import LOADERS
+
+    return [kind for kind, loader in LOADERS.items() if option in loader.OPTIONS]
+
+
+def add_input_flags(
+    target: argparse.ArgumentParser | argparse._ArgumentGroup,
+    *,
+    stride_default: int | None,
+    sequence: bool = True,
+    loader_group: argparse._ArgumentGroup | None = None,
+) -> None:
+    """The input flags of `run` and `sweep`: `--dataset/--kitti`, `--dataset-kind`, `--sequence` (unless
+    `sequence` is False: sweep's is an axis), `--start`, `--stop`, `--stride` (default `stride_default`;
+    None lets a sweep file's value stand) and the loader options (`loader_flags()`) into `loader_group`, or
+    into `target` when there is none."""
+    from hippo_nav.datasets import LOADERS
+
+    target.set_defaults(dataset=None, dataset_flags=[])
+    layouts = "; ".join(f"{loader.TITLE} ({kind})" for kind, loader in LOADERS.items())
+    target.add_argument(
+        "--dataset",
+        "--kitti",
+        metavar="PATH",
+        action=_DatasetPath,
+        help=f"the stereo dataset, recognised by its layout: {layouts}; --kitti is another name for it "
+        "(default: none, the built-in synthetic demo loop)",
+    )
+    target.add_argument(
+        "--dataset-kind",
+        choices=list(LOADERS),
+        default=None,
+        help="read --dataset as this kind instead of detecting it (default: detected from the layout)",
+    )
+    if sequence:
+        numbered = "; ".join(f"{loader.DEFAULT_SEQUENCE} for {kind}" for kind, loader in LOADERS.items()
+                             if loader.DEFAULT_SEQUENCE is not None)  # fmt: skip
+        target.add_argument(
+            "--sequence",
+            default=None,
+            help="the sequence inside --dataset: a sequence number (KITTI) or a sequence folder (EuRoC, stereo "
+            f"folder) (default: {numbered}; else the path itself)",
+        )
+    target.add_argument("--start", type=int, default=None, help="first frame (default: the sequence's first)")
+    target.add_argument(
+        "--stop", type=int, default=None, help="frame to stop before (default: run to the end)"
+    )
+    target.add_argument(
+        "--stride", type=int, default=stride_default, help="use every n-th frame (default: 1)"
+    )
+    options = target if loader_group is None else loader_group
+    for key, flag in loader_flags().items():
+        options.add_argument(
+            flag.flag, dest=key, metavar=flag.metavar, help=f"{'/'.join(loaders_taking(key))}: {flag.help}"
+        )
+
+
+def loader_options(args: argparse.Namespace) -> dict[str, object]:
+    """The loader options given on the command line, by keyword (the flags left out are not there)."""
+    return {key: getattr(args, key) for key in loader_flags() if getattr(args, key, None) is not None}
+
+
+def dataset_input(args: argparse.Namespace) -> tuple[str | None, dict[str, object]]:
+    """The dataset kind of `--dataset` (None for the demo) and the loader options of the flags, checked
+    against the loaders' contract (`StereoLoader.OPTIONS`)."""
+    from hippo_nav._core import HippoNavError
+    from hippo_nav.datasets import LOADERS, detect_kind
+
+    options = loader_options(args)
+    named = loader_flags()
+    flags = ", ".join(named[key].flag for key in options)
+    if args.dataset is None:
+        for value, flag in ((args.dataset_kind, "--dataset-kind"), (options, flags)):
+            if value:
+                raise HippoNavError(f"{flag} needs --dataset PATH (the dataset to read)")
+        return None, {}
+    if len(args.dataset_flags) > 1:
+        raise HippoNavError(
+            f"give one dataset path: {' and '.join(args.dataset_flags)} name the same option (--kitti is "
+            "another name for --dataset)"
+        )
+    path = Path(args.dataset)
+    if not path.exists():
+        raise HippoNavError(f"{args.dataset_flags[0]} {args.dataset}: no such file or folder")
+    kind = args.dataset_kind or detect_kind(path)
+    if kind is not None:
+        refused = [key for key in options if key not in LOADERS[kind].OPTIONS]
+        if refused:
+            takers = [k for k in LOADERS if any(k in loaders_taking(key) for key in refused)]
+            titles = " or ".join(LOADERS[k].TITLE for k in takers)
+            raise HippoNavError(f"{flags}: only for {titles}; {args.dataset} is a {kind} dataset")
+    topics = options.get("topics")
+    if topics is not None and not Path(str(topics)).is_file():
+        raise HippoNavError(f"--topics {topics}: no such file (a YAML with left_topic, right_topic, …)")
+    return kind, options

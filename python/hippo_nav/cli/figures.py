@@ -1,0 +1,37 @@
+"""`hippo-nav figures`: the paper's theory figures, or the synthetic street at each appearance level."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from hippo_nav.cli.common import HelpFormatter
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    figures = sub.add_parser(
+        "figures",
+        help="write the paper's theory figures (or the appearance levels of the synthetic street) as PNG files",
+        description="Writes the paper's theory figures (the 1-D theory of multi-resolution grid codes) as PNG "
+        "files; with --appearance, appearance_levels.png instead: one place of the synthetic street at each "
+        "appearance level, on pass 0 and pass 1 (docs/render.md).",
+        formatter_class=HelpFormatter,
+    )
+    figures.add_argument("--out", default="runs/figures", help="folder for the PNG files")
+    figures.add_argument(
+        "--appearance",
+        action="store_true",
+        help="write appearance_levels.png (the synthetic street at each appearance level) instead",
+    )
+
+
+def command(args: argparse.Namespace) -> int:
+    if args.appearance:
+        from hippo_nav.synthetic.figures import appearance_figure
+
+        print(f"wrote {appearance_figure(Path(args.out) / 'appearance_levels.png')}")
+        return 0
+    from hippo_nav.theory.figures import write_all_figures
+
+    write_all_figures(args.out)
+    return 0

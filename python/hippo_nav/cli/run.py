@@ -1,0 +1,281 @@
+"""`hippo-nav run`: the SLAM pipeline on a stereo sequence (the built-in synthetic demo loop without one)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from collections.abc import Callable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from hippo_nav.cli.common import MAX_SEED, SIGNAL_EXIT, HelpFormatter, add_input_flags, dataset_input
+
+if TYPE_CHECKING:
+    from hippo_nav.pipeline import RunResult
+    from hippo_nav.viewer.rerun import RerunObserver
+    from hippo_nav.viewer.video import VideoObserver
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    """`hippo-nav run`: its choices come from the loader registry, the module names and the replay formats."""
+    run = sub.add_parser(
+        "run",
+        help="run the SLAM pipeline on a stereo sequence (the built-in synthetic demo loop when no dataset is given)",
+        description="Stereo VO (or another system's odometry, replayed with --odometry), spatial-memory "
+        "network, view cells and experience map on every frame; writes trajectories (KITTI and TUM), the "
+        "map, metrics.json, the resolved config and figures into --out.",
+        formatter_class=HelpFormatter,
+    )
+    data = run.add_argument_group("input")
+    options = run.add_argument_group("loader options", "keywords of the loaders that take them")
+    add_input_flags(data, stride_default=1, loader_group=options)
+    _add_configuration(run.add_argument_group("configuration"))
+    _add_odometry(run.add_argument_group("odometry"))
+    run.add_argument_group("maps that outlive a run").add_argument(
+        "--map",
+        dest="memory_from",
+        default=None,
+        metavar="PREVIOUS_RESULTS",
+        help="start inside the map of an earlier run (its results folder, which holds memory/): lost until a "
+        "familiar view is confirmed by the closure measurement, then placed in that map and extending it; "
+        "metrics.json's loaded_map says when and where (docs/memory.md) (default: a new map)",
+    )
+    _add_output(run.add_argument_group("output"))
+    _add_viewers(run.add_argument_group("viewers"))
+
+
+def _add_configuration(setup: argparse._ArgumentGroup) -> None:
+    from hippo_nav.engine import MODULE_NAMES
+
+    setup.add_argument(
+        "--config",
+        metavar="JSON",
+        help="pipeline config file (any subset of sections; the rest: defaults) (default: none, all defaults)",
+    )
+    setup.add_argument(
+        "--lesion",
+        action="append",
+        default=[],
+        choices=list(MODULE_NAMES),
+        help="switch a grid module off (repeatable; adds to the config's lesions)",
+    )
+    setup.add_argument(
+        "--seed", type=int, default=None, help=f"override the config's seed (0 to {MAX_SEED}; default 0)"
+    )
+
+
+def _add_odometry(odometry: argparse._ArgumentGroup) -> None:
+    from hippo_nav.vo.replay import ALIGNMENTS, FORMATS
+
+    odometry.add_argument(
+        "--odometry",
+        metavar="FILE",
+        help="replay another system's trajectory (KITTI or TUM file) instead of the built-in stereo VO "
+        "(default: none, the built-in stereo VO)",
+    )
+    odometry.add_argument(
+        "--odometry-format",
+        choices=list(FORMATS),
+        default=None,
+        help="format of --odometry (default: guessed, 12 numbers a line = kitti, 8 = tum)",
+    )
+    odometry.add_argument(
+        "--odometry-align",
+        choices=list(ALIGNMENTS),
+        default=None,
+        help="how a KITTI --odometry file's lines map to frames: exact (default) one line per frame of the "
+        "sequence; start: line 0 is frame 0, extra lines at the end ignored; end: the last line is the "
+        "sequence's last frame",
+    )
+
+
+def _add_output(output: argparse._ArgumentGroup) -> None:
+    output.add_argument(
+        "--out",
+        default=None,
+        help="results folder (default: runs/demo for the demo, runs/kitti_NN for a KITTI sequence, else "
+        "runs/<sequence or dataset name>); it must be new or empty unless --overwrite",
+    )
+    output.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace the results of an earlier run in --out (only the files a run writes are removed)",
+    )
+    output.add_argument("--no-figures", action="store_true", help="skip the figures")
+    output.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _add_viewers(viewers: argparse._ArgumentGroup) -> None:
+    viewers.add_argument(
+        "--rerun",
+        nargs="?",
+        const="",
+        default=None,
+        metavar="FILE.rrd",
+        help="log every frame to the Rerun viewer (camera and features, neural panels, decoded motion, the "
+        "map growing, stage timings): without FILE, spawn a viewer or connect to a running one; with FILE, "
+        "save a recording that `rerun FILE` opens later. Needs pip install 'hippo-nav[viewer]' (default: off)",
+    )
+    viewers.add_argument(
+        "--video",
+        action="store_true",
+        help="write mapping.mp4 into --out: camera, neural panels and the map growing (default: off)",
+    )
+    viewers.add_argument(
+        "--video-every",
+        type=int,
+        default=5,
+        metavar="N",
+        help="with --video, one video frame every N frames (and one after the final correction)",
+    )
+
+
+def command(args: argparse.Namespace) -> int:
+    from hippo_nav._core import HippoNavError
+    from hippo_nav.pipeline import load_config, run
+
+    if args.dataset is None and args.sequence is not None:
+        raise HippoNavError(
+            f"--sequence {args.sequence} needs --kitti/--dataset PATH (the dataset that holds it); without a "
+            "dataset the built-in demo runs"
+        )
+    if args.seed is not None and not 0 <= args.seed <= MAX_SEED:
+        raise HippoNavError(f"--seed {args.seed}: give an integer from 0 to {MAX_SEED}")
+    kind, options = dataset_input(args)
+    if args.out is None:
+        args.out = _default_out(args, kind)
+    odometry = _replay(args)
+    config = load_config(args.config)
+    if args.lesion:
+        config = config.with_lesions(*args.lesion)
+    if args.seed is not None:
+        config = config.model_copy(update={"seed": args.seed})
+    if args.no_figures:
+        config = config.model_copy(update={"output": config.output.model_copy(update={"figures": False})})
+    observers = _observers(args)  # before any frame: a missing viewer extra is reported at once
+    try:
+        result = run(
+            args.out,
+            dataset=args.dataset,
+            sequence=args.sequence,
+            start=args.start,
+            stop=args.stop,
+            stride=args.stride,
+            config=config,
+            progress=not args.no_progress,
+            odometry=odometry,
+            overwrite=args.overwrite,
+            dataset_kind=args.dataset_kind,
+            dataset_options=options,
+            observers=observers,
+            memory_from=args.memory_from,
+        )
+    finally:
+        for observer in observers:
+            observer.close()
+    return _print_result(args, result)
+
+
+def _print_result(args: argparse.Namespace, result: RunResult) -> int:
+    """Print what the run did and where it wrote it; the exit code (128 + the signal that stopped it)."""
+    from hippo_nav.pipeline.results import bump_rows, format_bump_table
+
+    print(json.dumps(_summary(result.metrics), indent=2))
+    # The paper's bump table (μ, σ of every grid bump, fused, place) at the last snapshot frame only;
+    # bump_table.csv in --out holds every snapshot frame.
+    rows = bump_rows(result.record)
+    if rows:
+        last_frame = max(r["frame"] for r in rows)
+        print(f"bump table at frame {last_frame} (radians on the torus):")
+        print(format_bump_table([r for r in rows if r["frame"] == last_frame]))
+    if result.interrupted:
+        print(f"interrupted after {result.metrics['frames']} frames; results so far written to {args.out}")
+        return SIGNAL_EXIT.get(result.metrics.get("interrupted_by", "SIGINT"), 130)
+    if result.metrics.get("interrupted_by"):  # every frame, but a signal during the correction or the figures
+        print(f"interrupted after the last frame; results written to {args.out} (see metrics.json)")
+        return SIGNAL_EXIT.get(result.metrics["interrupted_by"], 130)
+    print(f"results written to {args.out}")
+    if args.video:
+        print(f"video written to {Path(args.out) / 'mapping.mp4'}")
+    if args.rerun and not args.rerun.startswith("rerun"):
+        print(f"rerun recording written to {args.rerun}; open it with: rerun {args.rerun}")
+    return 0
+
+
+def _default_out(args: argparse.Namespace, kind: str | None) -> str:
+    """runs/demo for the demo; runs/<kind>_<sequence> for a loader of numbered sequences (KITTI); else
+    runs/<sequence or the dataset path's name>."""
+    from hippo_nav.datasets import LOADERS
+
+    if kind is None:
+        return "runs/demo" if args.dataset is None else f"runs/{Path(args.dataset).resolve().stem}"
+    numbered = LOADERS[kind].DEFAULT_SEQUENCE
+    if numbered is not None:
+        return f"runs/{kind}_{args.sequence or numbered}"
+    return f"runs/{args.sequence or Path(args.dataset).resolve().stem}"
+
+
+def _observers(args: argparse.Namespace) -> list[RerunObserver | VideoObserver]:
+    """The viewers asked for: `--rerun [FILE]` and `--video` (mapping.mp4 in --out)."""
+    from hippo_nav._core import HippoNavError
+
+    observers: list[RerunObserver | VideoObserver] = []
+    if args.video_every < 1:
+        raise HippoNavError(f"--video-every {args.video_every}: give a positive number of frames")
+    if args.rerun is not None:
+        from hippo_nav.viewer.rerun import RerunObserver
+
+        target = args.rerun or None
+        if target is not None and not str(target).startswith("rerun") and Path(target).suffix != ".rrd":
+            raise HippoNavError(
+                f"--rerun {target}: give a recording file ending in .rrd (or no file for a live viewer)"
+            )
+        observers.append(RerunObserver(target))
+    if args.video:
+        from hippo_nav.viewer.video import VideoObserver
+
+        observers.append(VideoObserver(Path(args.out) / "mapping.mp4", every=args.video_every))
+    return observers
+
+
+def _replay(args: argparse.Namespace) -> Callable[[Any], Any] | None:
+    """The `--odometry` replay as the callable `run()` aligns with the opened dataset, or None.
+
+    The file is read (and every line checked) here, before the dataset is opened or rendered."""
+    from hippo_nav._core import HippoNavError
+
+    if args.odometry is None:
+        for flag in ("odometry_format", "odometry_align"):
+            if getattr(args, flag) is not None:
+                option = "--" + flag.replace("_", "-")
+                raise HippoNavError(f"{option} needs --odometry FILE (the trajectory to replay)")
+        return None
+    from hippo_nav.vo.replay import replay_odometry
+
+    align = args.odometry_align or "exact"
+    build = replay_odometry(args.odometry, file_format=args.odometry_format, align=align)
+
+    def aligned(dataset):
+        replay = build(dataset)  # raises before any frame runs when the file does not fit the dataset
+        print(replay.note)
+        return replay
+
+    return aligned
+
+
+def _summary(metrics: dict) -> dict:
+    """The headline numbers of a run (metrics.json holds everything)."""
+    keys = ["sequence", "note", "frames", "view_cells", "vertices", "loop_closures", "interrupted"]
+    summary = {k: metrics[k] for k in keys if metrics.get(k) not in (None, "")}
+    loaded = metrics.get("loaded_map")
+    if loaded:
+        summary["relocalised"] = loaded.get("relocalised")
+        if loaded.get("relocalisation"):
+            summary["relocalised_at_frame"] = loaded["relocalisation"]["frame"]
+    for name, entry in (metrics.get("errors") or {}).items():
+        if isinstance(entry, dict) and "ate_2d_m" in entry:
+            summary[f"ate_2d_m_{name}"] = entry["ate_2d_m"]
+    timing = metrics.get("timing", {})
+    if timing.get("frames_per_s") is not None:
+        summary["frames_per_s"] = timing["frames_per_s"]
+    return summary

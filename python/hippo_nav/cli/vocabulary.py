@@ -1,0 +1,70 @@
+"""`hippo-nav vocabulary`: the word view cells' vocabulary, trained on a folder of images or remade from the
+renders."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from hippo_nav.cli.common import HelpFormatter
+
+if TYPE_CHECKING:
+    import numpy as np
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    vocabulary = sub.add_parser(
+        "vocabulary",
+        help="train the word view cells' vocabulary (on your images, or remake the shipped one)",
+        description="Trains a vocabulary of binary words for the word view cells (docs/views.md) on the ORB "
+        "features of the images in --images (every PNG/JPEG in the folder, gray or colour), or, without "
+        "--images, on the procedural street renders the shipped vocabulary was trained on (the result is "
+        "then the shipped file). Use it with the config's view_words.vocabulary = FILE.",
+        formatter_class=HelpFormatter,
+    )
+    vocabulary.add_argument("--out", required=True, metavar="FILE", help="vocabulary file to write")
+    vocabulary.add_argument(
+        "--images", metavar="DIR", default=None, help="folder of training images (default: the renders)"
+    )
+    vocabulary.add_argument("--every", type=int, default=1, metavar="N", help="use every Nth image")
+    vocabulary.add_argument("--branching", type=int, default=10, help="children per node of the word tree")
+    vocabulary.add_argument("--levels", type=int, default=4, help="depth of the word tree")
+    vocabulary.add_argument("--seed", type=int, default=0, help="seed of the k-means clustering")
+
+
+def command(args: argparse.Namespace) -> int:
+    from hippo_nav._core import HippoNavError
+    from hippo_nav.synthetic import street_views
+    from hippo_nav.view_cells import train_vocabulary
+
+    if args.every < 1:
+        raise HippoNavError(f"--every {args.every}: give 1 or more")
+    if args.images is None:
+        images: Any = street_views()
+    else:
+        folder = Path(args.images)
+        if not folder.is_dir():
+            raise HippoNavError(f"--images {folder}: not a folder")
+        suffixes = {".png", ".jpg", ".jpeg"}
+        paths = sorted(p for p in folder.iterdir() if p.suffix.lower() in suffixes)[:: args.every]
+        if not paths:
+            raise HippoNavError(f"--images {folder}: no PNG or JPEG images there")
+        images = (_read_gray(p) for p in paths)
+    vocabulary = train_vocabulary(images, branching=args.branching, levels=args.levels, seed=args.seed)
+    out = Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    vocabulary.save(out)
+    print(
+        f"wrote {out}: {len(vocabulary)} words (branching {vocabulary.branching}, {vocabulary.levels} levels)"
+    )
+    return 0
+
+
+def _read_gray(path: Path) -> np.ndarray:
+    import cv2
+
+    from hippo_nav.datasets.common import read_image_file
+
+    # Decoded from its bytes: any file name works (OpenCV's own reader crashes on some), sizes are checked.
+    return read_image_file(path, cv2.IMREAD_GRAYSCALE)
