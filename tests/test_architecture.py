@@ -86,3 +86,15 @@ def test_the_rule_catches_an_upward_import(tmp_path: Path):
     bad.write_text("def f():\n    from hippo_nav.pipeline import run\n    return run\n")
     ((line, module),) = _imports(bad)
     assert (line, module) == (2, "hippo_nav.pipeline") and _layer(_part(module)) > _layer("engine")
+
+
+def test_the_system_sits_below_its_runner_and_its_config_below_the_plug_board():
+    """The per-frame system (`hippo_nav.system`) may not import the runner (`hippo_nav.pipeline`), nor anything
+    above it; inside the system, the config derives its sections from the parts' own registries and never
+    imports the plug board that builds the parts from it (no config ↔ parts circle)."""
+    assert _layer("system") < _layer("pipeline") < _layer("cli")
+    for path in (PACKAGE / "system").glob("*.py"):
+        targets = {_part(module) for _, module in _imports(path)}
+        assert "pipeline" not in targets, path
+    config_imports = {module for _, module in _imports(PACKAGE / "system" / "config.py")}
+    assert "hippo_nav.system.parts" not in config_imports and "hippo_nav.system" not in config_imports
