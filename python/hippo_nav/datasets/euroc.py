@@ -150,6 +150,58 @@ def read_ground_truth(path: Path) -> tuple[np.ndarray, np.ndarray]:
     return np.array(stamps), np.stack(poses)
 
 
+def _find_sequence(root: Path, sequence: str | None) -> Path:
+    """The mav0 folder of `root` (or of `root/sequence`); the error lists the sequences `root` holds."""
+    folder = root / sequence if sequence else root
+    mav0 = find_mav0(folder)
+    if mav0 is not None:
+        return mav0
+    sequences = sorted(p.name for p in root.iterdir() if p.is_dir() and find_mav0(p)) if root.is_dir() else []
+    if sequences and not sequence:
+        raise DatasetError(
+            f"{root}: holds several ASL sequences; name one with sequence (--sequence): {', '.join(sequences)}"
+        )
+    present = f"; present: {', '.join(sequences)}" if sequences else ""
+    raise DatasetError(f"{folder}: not an EuRoC/ASL sequence (no mav0/cam0 folder){present}")
+
+
+def _open_cameras(mav0: Path) -> tuple[CameraFiles, CameraFiles]:
+    """cam0 (left) and cam1 (right) of a sequence, which must have the same resolution."""
+    left, right = CameraFiles(mav0 / "cam0"), CameraFiles(mav0 / "cam1")
+    if left.image_size_px != right.image_size_px:
+        raise DatasetError(
+            f"{right.sensor_path}: resolution {right.image_size_px} differs from cam0's "
+            f"{left.image_size_px}; stereo pairs must have equal sizes"
+        )
+    return left, right
+
+
+def _rectifier(left: CameraFiles, right: CameraFiles, first_row: int) -> StereoRectifier:
+    """The rig's rectification (pose of cam1 in cam0: `T_BS0⁻¹ T_BS1`), after checking that cam0's image at
+    `first_row` has the resolution of sensor.yaml and that both cameras share a distortion model."""
+    first = read_image(left.image_path(first_row))
+    if (first.shape[1], first.shape[0]) != left.image_size_px:
+        raise DatasetError(
+            f"{left.image_path(first_row)}: size {first.shape[::-1]} differs from the resolution "
+            f"{left.image_size_px} in {left.sensor_path}"
+        )
+    if right.model.lower() != left.model.lower():
+        raise DatasetError(
+            f"{right.sensor_path}: distortion model {right.model!r} differs from cam0's {left.model!r}"
+        )
+    camera0_from_camera1 = np.linalg.inv(left.body_from_sensor) @ right.body_from_sensor
+    return rectify_rig(
+        left.K,
+        left.D,
+        right.K,
+        right.D,
+        camera0_from_camera1,
+        left.image_size_px,
+        left.model,
+        f"{left.sensor_path} + {right.sensor_path.parent.name}/sensor.yaml",
+    )
+
+
 class EurocStereo(StereoLoader):
     """An EuRoC / ASL stereo sequence as a rectified `StereoDataset` (layout and semantics: module doc)."""
 
@@ -169,85 +221,68 @@ class EurocStereo(StereoLoader):
         trim_to_ground_truth: bool = True,
     ) -> None:
         super().__init__(stride)
-        root = Path(root)
-        folder = root / sequence if sequence else root
-        mav0 = find_mav0(folder)
-        if mav0 is None:
-            sequences = (
-                sorted(p.name for p in root.iterdir() if p.is_dir() and find_mav0(p)) if root.is_dir() else []
-            )
-            if sequences and not sequence:
-                raise DatasetError(
-                    f"{root}: holds several ASL sequences; name one with sequence (--sequence): "
-                    f"{', '.join(sequences)}"
-                )
-            present = f"; present: {', '.join(sequences)}" if sequences else ""
-            raise DatasetError(f"{folder}: not an EuRoC/ASL sequence (no mav0/cam0 folder){present}")
+        mav0 = _find_sequence(Path(root), sequence)
         self.root = mav0.parent if mav0.name == "mav0" else mav0
         self.name = f"euroc_{self.root.name}"
-        left, right = CameraFiles(mav0 / "cam0"), CameraFiles(mav0 / "cam1")
-        if left.image_size_px != right.image_size_px:
-            raise DatasetError(
-                f"{right.sensor_path}: resolution {right.image_size_px} differs from cam0's "
-                f"{left.image_size_px}; stereo pairs must have equal sizes"
-            )
+        left, right = _open_cameras(mav0)
         self._left, self._right = left, right
 
         # Stereo pairs by timestamp, then the frame range.
         tolerance_s = None if max_stereo_dt_s is None else float(max_stereo_dt_s)
-        left_rows, right_rows, _ = pair_by_time(left.stamps_ns * 1e-9, right.stamps_ns * 1e-9, tolerance_s)
         where = f"{mav0 / 'cam0' / 'data.csv'}"
-        selection = FrameSelection(left_rows, len(left.files), start, stop, stride, where)
-        self.missing_frames = selection.missing_frames
-        self.warnings += selection.warnings
-        partner = dict(zip(left_rows.tolist(), right_rows.tolist()))
-        frames = selection.frames
-        if len(left_rows) < max(len(left.files), len(right.files)):
-            self.warnings.append(
-                f"cam0 lists {len(left.files)} images and cam1 {len(right.files)}: {len(left_rows)} pairs "
-                "matched by timestamp, the other images are not used"
-            )
+        frames, partner = self._select_pairs(tolerance_s, start, stop, stride, where)
 
         # Rectification, checked now (before any frame is processed).
-        first = read_image(left.image_path(int(frames[0])))
-        if (first.shape[1], first.shape[0]) != left.image_size_px:
-            raise DatasetError(
-                f"{left.image_path(int(frames[0]))}: size {first.shape[::-1]} differs from the resolution "
-                f"{left.image_size_px} in {left.sensor_path}"
-            )
-        if right.model.lower() != left.model.lower():
-            raise DatasetError(
-                f"{right.sensor_path}: distortion model {right.model!r} differs from cam0's {left.model!r}"
-            )
-        camera0_from_camera1 = np.linalg.inv(left.body_from_sensor) @ right.body_from_sensor
-        self.rectifier: StereoRectifier = rectify_rig(
-            left.K,
-            left.D,
-            right.K,
-            right.D,
-            camera0_from_camera1,
-            left.image_size_px,
-            left.model,
-            f"{left.sensor_path} + {right.sensor_path.parent.name}/sensor.yaml",
-        )
+        self.rectifier: StereoRectifier = _rectifier(left, right, int(frames[0]))
         self.calibration = self.rectifier.calibration
 
         # Ground truth at the image times, in the rectified camera 0.
         times_s = left.stamps_ns[frames] * 1e-9
         gt_path = mav0 / "state_groundtruth_estimate0" / "data.csv"
         if gt_path.is_file():
-            gt_s, world_from_body = read_ground_truth(gt_path)
-            world_from_camera = self.rectifier.rectified_pose(world_from_body @ left.body_from_sensor)
-            gt, keep, notes = ground_truth_at_frames(
-                gt_s, world_from_camera, times_s, trim_to_ground_truth, str(gt_path)
-            )
-            self.warnings += notes
-            frames, times_s, self._ground_truth = frames[keep], times_s[keep], gt
+            frames, times_s = self._ground_truth_at(gt_path, frames, times_s, trim_to_ground_truth)
         self.frame_indices = frames
         self.timestamps_s = times_s
         check_increasing(self.timestamps_s, where)
         self._right_rows = np.array([partner[int(f)] for f in frames], dtype=np.int64)
         self._finish_note()
+
+    def _select_pairs(
+        self,
+        tolerance_s: float | None,
+        start: int | None,
+        stop: int | None,
+        stride: int,
+        where: str,
+    ) -> tuple[np.ndarray, dict[int, int]]:
+        """(cam0 rows of the selected frames, the cam1 row of every paired cam0 row): left and right images
+        paired by timestamp, then `start`/`stop`/`stride`; what is left out goes to the warnings."""
+        left, right = self._left, self._right
+        left_rows, right_rows, _ = pair_by_time(left.stamps_ns * 1e-9, right.stamps_ns * 1e-9, tolerance_s)
+        selection = FrameSelection(left_rows, len(left.files), start, stop, stride, where)
+        self.missing_frames = selection.missing_frames
+        self.warnings += selection.warnings
+        partner = dict(zip(left_rows.tolist(), right_rows.tolist()))
+        if len(left_rows) < max(len(left.files), len(right.files)):
+            self.warnings.append(
+                f"cam0 lists {len(left.files)} images and cam1 {len(right.files)}: {len(left_rows)} pairs "
+                "matched by timestamp, the other images are not used"
+            )
+        return selection.frames, partner
+
+    def _ground_truth_at(
+        self, gt_path: Path, frames: np.ndarray, times_s: np.ndarray, trim_to_ground_truth: bool
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Set the ground truth (`world_from_camera` of the rectified camera 0) at the frames' times; returns
+        the frames and times it keeps (those outside its span are dropped when `trim_to_ground_truth`)."""
+        gt_s, world_from_body = read_ground_truth(gt_path)
+        world_from_camera = self.rectifier.rectified_pose(world_from_body @ self._left.body_from_sensor)
+        gt, keep, notes = ground_truth_at_frames(
+            gt_s, world_from_camera, times_s, trim_to_ground_truth, str(gt_path)
+        )
+        self.warnings += notes
+        self._ground_truth = gt
+        return frames[keep], times_s[keep]
 
     def _frame(self, i: int) -> StereoFrame:
         frame = int(self.frame_indices[i])

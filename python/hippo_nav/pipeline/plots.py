@@ -352,46 +352,78 @@ def rate_maps_figure(
                 _lesioned(ax, title)
             continue
         activity = np.stack(rows)[:n].astype(np.float64)  # (frames, units)
-        centres, bin_rates = path_rate_map(positions[: len(activity)], activity, bin_m)
-        unit = most_selective_unit(bin_rates)
-        rates = bin_rates[:, unit] if len(bin_rates) else np.zeros(0)
-        peak = float(np.nanmax(rates)) if len(rates) else 0.0
-        order = np.argsort(rates, kind="stable")  # fields on top where passes overlap
-        scale = peak if peak > 0 else 1.0
-        # Field bins drawn up to twice as large: a few-metre field on a kilometre map stays visible.
-        side_pt = square_pt * (1.0 + rates[order] / scale)
-        dots = top.scatter(
-            *centres[order].T, c=rates[order], s=side_pt**2, marker="s", cmap=RATE_CMAP, vmin=0.0, vmax=scale,
-            linewidths=0,
+        # The unit is chosen on the road-network map; the folded map shows the same unit.
+        unit = _draw_path_rate_map(figure, top, title, positions[: len(activity)], activity, bin_m, square_pt)
+        _draw_folded_rate_map(
+            figure, bottom, title, k, unit, folded_positions[: len(activity)], activity[:, unit],
+            torus_period_m, fold_bins,
         )  # fmt: skip
-        top.set_aspect("equal", adjustable="datalim")
-        top.set_title(f"{title}: unit {unit} of {activity.shape[1]} sampled", fontsize=9)
-        top.set_xlabel("x (m)")
-        top.set_ylabel("y (m)")
-        figure.colorbar(dots, ax=top, shrink=0.8, label="mean activity (a.u.)")
-
-        folded = folded_rate_map(
-            folded_positions[: len(activity)], activity[:, unit], torus_period_m, fold_bins
-        )
-        image = bottom.imshow(
-            np.ma.masked_invalid(folded), origin="lower", extent=(0, torus_period_m, 0, torus_period_m),
-            cmap=_cmap_with_unvisited(), vmin=0.0, interpolation="nearest",
-        )  # fmt: skip
-        if k is not None and k > 1:
-            # Ticks every P/k: one period of the module's fields per tick interval.
-            ticks = np.linspace(0.0, torus_period_m, k + 1)
-            bottom.set_xticks(ticks)
-            bottom.set_yticks(ticks)
-        bottom.set_title(f"{title}: unit {unit} folded mod P\n{_fields_note(k)}", fontsize=9)
-        bottom.set_xlabel(f"x mod {torus_period_m:g} m")
-        bottom.set_ylabel(f"y mod {torus_period_m:g} m")
-        figure.colorbar(image, ax=bottom, shrink=0.8, label="mean activity (a.u.)")
     figure.suptitle(
         f"{result.name}: firing-rate maps over {n} frames\ntop: positions from the {source}, {bin_m:.3g} m bins; "
         f"bottom: the {fold_source} folded onto the P = {torus_period_m:g} m torus period, "
         f"{torus_period_m / fold_bins:.3g} m bins (grey: never visited)"
     )
     return figure
+
+
+def _draw_path_rate_map(
+    figure: Figure,
+    ax: Axes,
+    title: str,
+    positions_m: np.ndarray,
+    activity: np.ndarray,
+    bin_m: float,
+    square_pt: float,
+) -> int:
+    """Draw the rate map over the visited `bin_m` bins (map frame, m) of the network's most selective unit
+    (`activity`: frames × units) as squares of at least `square_pt`, with its colour bar; returns the unit."""
+    centres, bin_rates = path_rate_map(positions_m, activity, bin_m)
+    unit = most_selective_unit(bin_rates)
+    rates = bin_rates[:, unit] if len(bin_rates) else np.zeros(0)
+    peak = float(np.nanmax(rates)) if len(rates) else 0.0
+    order = np.argsort(rates, kind="stable")  # fields on top where passes overlap
+    scale = peak if peak > 0 else 1.0
+    # Field bins drawn up to twice as large: a few-metre field on a kilometre map stays visible.
+    side_pt = square_pt * (1.0 + rates[order] / scale)
+    dots = ax.scatter(
+        *centres[order].T, c=rates[order], s=side_pt**2, marker="s", cmap=RATE_CMAP, vmin=0.0, vmax=scale,
+        linewidths=0,
+    )  # fmt: skip
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_title(f"{title}: unit {unit} of {activity.shape[1]} sampled", fontsize=9)
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    figure.colorbar(dots, ax=ax, shrink=0.8, label="mean activity (a.u.)")
+    return unit
+
+
+def _draw_folded_rate_map(
+    figure: Figure,
+    ax: Axes,
+    title: str,
+    k: int | None,
+    unit: int,
+    positions_m: np.ndarray,
+    unit_activity: np.ndarray,
+    torus_period_m: float,
+    fold_bins: int,
+) -> None:
+    """Draw one unit's activity with the positions (map frame, m) folded modulo `torus_period_m` into
+    `fold_bins` × `fold_bins` bins (grey where never visited), with its colour bar."""
+    folded = folded_rate_map(positions_m, unit_activity, torus_period_m, fold_bins)
+    image = ax.imshow(
+        np.ma.masked_invalid(folded), origin="lower", extent=(0, torus_period_m, 0, torus_period_m),
+        cmap=_cmap_with_unvisited(), vmin=0.0, interpolation="nearest",
+    )  # fmt: skip
+    if k is not None and k > 1:
+        # Ticks every P/k: one period of the module's fields per tick interval.
+        ticks = np.linspace(0.0, torus_period_m, k + 1)
+        ax.set_xticks(ticks)
+        ax.set_yticks(ticks)
+    ax.set_title(f"{title}: unit {unit} folded mod P\n{_fields_note(k)}", fontsize=9)
+    ax.set_xlabel(f"x mod {torus_period_m:g} m")
+    ax.set_ylabel(f"y mod {torus_period_m:g} m")
+    figure.colorbar(image, ax=ax, shrink=0.8, label="mean activity (a.u.)")
 
 
 def _cmap_with_unvisited() -> Colormap:

@@ -494,7 +494,7 @@ class AppearanceModel:
         cars = self._cars_near(look, centre)
         hits["car"] = np.full(len(directions), -1)
         if cars is not None and len(cars):
-            seen = self._cast_cars(hits, cars, centre, directions, level_columns)
+            seen = _cast_cars(hits, cars, centre, directions, level_columns)
             hits["cars_seen"] = seen
         light = look.lighting
 
@@ -504,7 +504,9 @@ class AppearanceModel:
         gray = world.shade(hits, directions, float(K[0, 0]), surface=surface, sky_gain=light.sky_gain)
         gray = (light.exposure * gray).reshape(height, width)
         if self.level.shutter_share > 0 and camera_from_next is not None:
-            gray = self._motion_blur(gray, hits["points"], world_from_camera, camera_from_next, K)
+            gray = _motion_blur(
+                gray, hits["points"], world_from_camera, camera_from_next, K, self.level.shutter_share
+            )
         if self.level.vignetting > 0:
             u, v = np.meshgrid(np.arange(width) - K[0, 2], np.arange(height) - K[1, 2])
             r2 = (u**2 + v**2) / (
@@ -542,7 +544,7 @@ class AppearanceModel:
             ground = np.flatnonzero(kind == 1)
             seen = hits.get("cars_seen", np.zeros(0, dtype=np.int64))
             if len(ground) and len(seen):
-                value[ground] *= self._car_occlusion(points[ground], cars.take(seen))
+                value[ground] *= _car_occlusion(points[ground], cars.take(seen))
         value[solid] *= self._illumination(
             points[solid], height, hits["normals"][solid], segment, footprint[solid], look
         )
@@ -711,76 +713,6 @@ class AppearanceModel:
         )
         return cars.take(draw(0) < self.level.car_share)
 
-    def _cast_cars(
-        self,
-        hits: dict[str, np.ndarray],
-        cars: _Cars,
-        centre: np.ndarray,
-        directions: np.ndarray,
-        level_columns: int,
-    ) -> np.ndarray:
-        """Put the cars into `hits` where a ray meets a car before anything else; return the cars (indices)
-        that some image column meets."""
-        horizontal = np.maximum(np.hypot(directions[:, 0], directions[:, 2]), 1e-12)
-        step = directions / horizontal[:, None]  # per metre of horizontal distance, as in `cast`
-        n_rays = len(step)
-        flat = step[:level_columns, [0, 2]] if level_columns else step[:, [0, 2]]
-        left = _perpendicular(cars.along)
-        rel = centre[[0, 2]] - cars.centre_xz
-        in_u, out_u = _slab(
-            (rel * cars.along).sum(1), flat @ cars.along.T, -cars.half_length_m, cars.half_length_m
-        )
-        in_v, out_v = _slab((rel * left).sum(1), flat @ left.T, -_CAR_HALF_WIDTH_M, _CAR_HALF_WIDTH_M)
-        side_in, side_out = np.maximum(in_u, in_v), np.minimum(out_u, out_v)
-        # Only (ray, car) pairs whose column meets the car in the horizontal plane need the vertical test.
-        meets = (side_in < side_out) & (side_out > 0)
-        seen = np.flatnonzero(meets.any(0))
-        column, car = np.nonzero(meets)
-        if len(column) == 0:
-            return seen
-        if level_columns:  # every row of a column: ray = row · W + column
-            rows = n_rays // level_columns
-            ray = (np.arange(rows)[:, None] * level_columns + column[None, :]).ravel()
-            column, car = np.tile(column, rows), np.tile(car, rows)
-        else:
-            ray = column
-        y_top = cars.ground_y[car] - cars.height_m[car]
-        in_y, out_y = _slab(np.full(len(ray), centre[1]), step[ray, 1], y_top, cars.ground_y[car])
-        s_in = np.maximum(side_in[column, car], in_y)
-        hit = np.flatnonzero((s_in < np.minimum(side_out[column, car], out_y)) & (s_in > 1e-6))
-        if len(hit) == 0:
-            return seen
-        ray, column, car, s_in, in_y = ray[hit], column[hit], car[hit], s_in[hit], in_y[hit]
-        # The nearest car of each ray, if nearer than the street.
-        order = np.lexsort((s_in, ray))
-        _, first = np.unique(ray[order], return_index=True)
-        pick = order[first]
-        step_norm = np.linalg.norm(step[ray[pick]], axis=1)
-        nearer = pick[s_in[pick] * step_norm < hits["range_m"][ray[pick]]]
-        if len(nearer) == 0:
-            return seen
-        closer, c, q = ray[nearer], car[nearer], column[nearer]
-        s_best = s_in[nearer]
-        top = in_y[nearer] >= side_in[q, c]
-        lengthwise = in_u[q, c] >= in_v[q, c]  # which side face the ray enters by
-        # Normals point away from the camera, as the street's do.
-        rate_u = (flat[q] * cars.along[c]).sum(1)
-        rate_v = (flat[q] * left[c]).sum(1)
-        face_xz = np.where(
-            lengthwise[:, None], np.sign(rate_u)[:, None] * cars.along[c], np.sign(rate_v)[:, None] * left[c]
-        )
-        normal = np.where(
-            top[:, None], [0.0, 1.0, 0.0], np.stack([face_xz[:, 0], np.zeros(len(c)), face_xz[:, 1]], axis=1)
-        )
-        step_near = step[closer]
-        hits["kind"][closer] = 3
-        hits["range_m"][closer] = s_best * np.linalg.norm(step_near, axis=1)
-        hits["points"][closer] = centre + s_best[:, None] * step_near
-        hits["normals"][closer] = normal
-        hits["segment"][closer] = cars.segment[c]
-        hits["car"][closer] = c
-        return seen
-
     def _car_values(
         self, points: np.ndarray, car: np.ndarray, cars: _Cars, footprint: np.ndarray
     ) -> np.ndarray:
@@ -804,64 +736,137 @@ class AppearanceModel:
         value = (1 - windows) * value + windows * (35.0 + 0.15 * value)
         return (1 - wheels) * value + wheels * 25.0
 
-    def _car_occlusion(self, points: np.ndarray, cars: _Cars) -> np.ndarray:
-        """Darkening of the road under and beside each car (ambient occlusion: no light from below)."""
-        shade = np.ones(len(points))
-        xz = points[:, [0, 2]]
-        left = _perpendicular(cars.along)
-        for k in range(len(cars)):
-            reach = cars.half_length_m[k] + 1.5  # beyond 1.5 m the darkening is below 0.1 %
-            box = np.flatnonzero(np.all(np.abs(xz - cars.centre_xz[k]) < reach, axis=1))
-            rel = xz[box] - cars.centre_xz[k]
-            along = np.abs(rel @ cars.along[k]) - cars.half_length_m[k]
-            across = np.abs(rel @ left[k]) - _CAR_HALF_WIDTH_M
-            outside = np.hypot(np.maximum(along, 0.0), np.maximum(across, 0.0))
-            shade[box] *= 1 - 0.55 * np.exp(-((outside / 0.5) ** 2))
-        return shade
 
-    # ----------------------------------------------------------------------------------- camera
-    def _motion_blur(
-        self,
-        gray: np.ndarray,
-        points: np.ndarray,
-        world_from_camera: np.ndarray,
-        camera_from_next: np.ndarray,
-        K: np.ndarray,
-    ) -> np.ndarray:
-        """Average the image along each pixel's motion while the shutter is open (centred on the frame)."""
-        share = self.level.shutter_share
-        rotation = cv2.Rodrigues(cv2.Rodrigues(camera_from_next[:3, :3])[0] * share)[0]
-        shift = camera_from_next[:3, 3] * share
-        camera = (points - world_from_camera[:3, 3]) @ world_from_camera[:3, :3]
-        moved = (camera - shift) @ rotation  # the same points, seen at the end of the shutter time
+# --------------------------------------------------------------------------- cars: rays and shade
+# The model draws which cars stand where (`AppearanceModel._cars_near`); these only need the boxes.
+def _cast_cars(
+    hits: dict[str, np.ndarray],
+    cars: _Cars,
+    centre: np.ndarray,
+    directions: np.ndarray,
+    level_columns: int,
+) -> np.ndarray:
+    """Put the cars into `hits` where a ray meets a car before anything else; return the cars (indices)
+    that some image column meets."""
+    horizontal = np.maximum(np.hypot(directions[:, 0], directions[:, 2]), 1e-12)
+    step = directions / horizontal[:, None]  # per metre of horizontal distance, as in `cast`
+    n_rays = len(step)
+    flat = step[:level_columns, [0, 2]] if level_columns else step[:, [0, 2]]
+    left = _perpendicular(cars.along)
+    rel = centre[[0, 2]] - cars.centre_xz
+    in_u, out_u = _slab(
+        (rel * cars.along).sum(1), flat @ cars.along.T, -cars.half_length_m, cars.half_length_m
+    )
+    in_v, out_v = _slab((rel * left).sum(1), flat @ left.T, -_CAR_HALF_WIDTH_M, _CAR_HALF_WIDTH_M)
+    side_in, side_out = np.maximum(in_u, in_v), np.minimum(out_u, out_v)
+    # Only (ray, car) pairs whose column meets the car in the horizontal plane need the vertical test.
+    meets = (side_in < side_out) & (side_out > 0)
+    seen = np.flatnonzero(meets.any(0))
+    column, car = np.nonzero(meets)
+    if len(column) == 0:
+        return seen
+    if level_columns:  # every row of a column: ray = row · W + column
+        rows = n_rays // level_columns
+        ray = (np.arange(rows)[:, None] * level_columns + column[None, :]).ravel()
+        column, car = np.tile(column, rows), np.tile(car, rows)
+    else:
+        ray = column
+    y_top = cars.ground_y[car] - cars.height_m[car]
+    in_y, out_y = _slab(np.full(len(ray), centre[1]), step[ray, 1], y_top, cars.ground_y[car])
+    s_in = np.maximum(side_in[column, car], in_y)
+    hit = np.flatnonzero((s_in < np.minimum(side_out[column, car], out_y)) & (s_in > 1e-6))
+    if len(hit) == 0:
+        return seen
+    ray, column, car, s_in, in_y = ray[hit], column[hit], car[hit], s_in[hit], in_y[hit]
+    # The nearest car of each ray, if nearer than the street.
+    order = np.lexsort((s_in, ray))
+    _, first = np.unique(ray[order], return_index=True)
+    pick = order[first]
+    step_norm = np.linalg.norm(step[ray[pick]], axis=1)
+    nearer = pick[s_in[pick] * step_norm < hits["range_m"][ray[pick]]]
+    if len(nearer) == 0:
+        return seen
+    closer, c, q = ray[nearer], car[nearer], column[nearer]
+    s_best = s_in[nearer]
+    top = in_y[nearer] >= side_in[q, c]
+    lengthwise = in_u[q, c] >= in_v[q, c]  # which side face the ray enters by
+    # Normals point away from the camera, as the street's do.
+    rate_u = (flat[q] * cars.along[c]).sum(1)
+    rate_v = (flat[q] * left[c]).sum(1)
+    face_xz = np.where(
+        lengthwise[:, None], np.sign(rate_u)[:, None] * cars.along[c], np.sign(rate_v)[:, None] * left[c]
+    )
+    normal = np.where(
+        top[:, None], [0.0, 1.0, 0.0], np.stack([face_xz[:, 0], np.zeros(len(c)), face_xz[:, 1]], axis=1)
+    )
+    step_near = step[closer]
+    hits["kind"][closer] = 3
+    hits["range_m"][closer] = s_best * np.linalg.norm(step_near, axis=1)
+    hits["points"][closer] = centre + s_best[:, None] * step_near
+    hits["normals"][closer] = normal
+    hits["segment"][closer] = cars.segment[c]
+    hits["car"][closer] = c
+    return seen
 
-        def project(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            depth = np.maximum(p[:, 2], 0.1)
-            return K[0, 0] * p[:, 0] / depth + K[0, 1] * p[:, 1] / depth + K[0, 2], K[1, 1] * p[
-                :, 1
-            ] / depth + K[1, 2]
 
-        (u0, v0), (u1, v1) = project(camera), project(moved)
-        flow_u = (u1 - u0).reshape(gray.shape).astype(np.float32)
-        flow_v = (v1 - v0).reshape(gray.shape).astype(np.float32)
-        longest = float(np.sqrt(flow_u**2 + flow_v**2).max(initial=0.0))
-        if longest < 0.05:
-            return gray
-        taps = int(np.clip(np.ceil(longest) + 1, 2, 9))
-        grid_u, grid_v = np.meshgrid(
-            np.arange(gray.shape[1], dtype=np.float32), np.arange(gray.shape[0], dtype=np.float32)
+def _car_occlusion(points: np.ndarray, cars: _Cars) -> np.ndarray:
+    """Darkening of the road under and beside each car (ambient occlusion: no light from below)."""
+    shade = np.ones(len(points))
+    xz = points[:, [0, 2]]
+    left = _perpendicular(cars.along)
+    for k in range(len(cars)):
+        reach = cars.half_length_m[k] + 1.5  # beyond 1.5 m the darkening is below 0.1 %
+        box = np.flatnonzero(np.all(np.abs(xz - cars.centre_xz[k]) < reach, axis=1))
+        rel = xz[box] - cars.centre_xz[k]
+        along = np.abs(rel @ cars.along[k]) - cars.half_length_m[k]
+        across = np.abs(rel @ left[k]) - _CAR_HALF_WIDTH_M
+        outside = np.hypot(np.maximum(along, 0.0), np.maximum(across, 0.0))
+        shade[box] *= 1 - 0.55 * np.exp(-((outside / 0.5) ** 2))
+    return shade
+
+
+# ----------------------------------------------------------------------------------------- camera
+def _motion_blur(
+    gray: np.ndarray,
+    points: np.ndarray,
+    world_from_camera: np.ndarray,
+    camera_from_next: np.ndarray,
+    K: np.ndarray,
+    shutter_share: float,
+) -> np.ndarray:
+    """Average the image along each pixel's motion while the shutter is open (centred on the frame)."""
+    rotation = cv2.Rodrigues(cv2.Rodrigues(camera_from_next[:3, :3])[0] * shutter_share)[0]
+    shift = camera_from_next[:3, 3] * shutter_share
+    camera = (points - world_from_camera[:3, 3]) @ world_from_camera[:3, :3]
+    moved = (camera - shift) @ rotation  # the same points, seen at the end of the shutter time
+
+    def project(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        depth = np.maximum(p[:, 2], 0.1)
+        u = K[0, 0] * p[:, 0] / depth + K[0, 1] * p[:, 1] / depth + K[0, 2]
+        v = K[1, 1] * p[:, 1] / depth + K[1, 2]
+        return u, v
+
+    (u0, v0), (u1, v1) = project(camera), project(moved)
+    flow_u = (u1 - u0).reshape(gray.shape).astype(np.float32)
+    flow_v = (v1 - v0).reshape(gray.shape).astype(np.float32)
+    longest = float(np.sqrt(flow_u**2 + flow_v**2).max(initial=0.0))
+    if longest < 0.05:
+        return gray
+    taps = int(np.clip(np.ceil(longest) + 1, 2, 9))
+    grid_u, grid_v = np.meshgrid(
+        np.arange(gray.shape[1], dtype=np.float32), np.arange(gray.shape[0], dtype=np.float32)
+    )
+    source = gray.astype(np.float32)
+    total = np.zeros_like(source)
+    for t in np.linspace(-0.5, 0.5, taps, dtype=np.float32):
+        total += cv2.remap(
+            source,
+            grid_u + t * flow_u,
+            grid_v + t * flow_v,
+            cv2.INTER_LINEAR,
+            borderMode=cv2.BORDER_REFLECT,
         )
-        source = gray.astype(np.float32)
-        total = np.zeros_like(source)
-        for t in np.linspace(-0.5, 0.5, taps, dtype=np.float32):
-            total += cv2.remap(
-                source,
-                grid_u + t * flow_u,
-                grid_v + t * flow_v,
-                cv2.INTER_LINEAR,
-                borderMode=cv2.BORDER_REFLECT,
-            )
-        return total.astype(np.float64) / taps
+    return total.astype(np.float64) / taps
 
 
 def shutter_motion(world_from_camera: np.ndarray, i: int) -> np.ndarray | None:

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import json
 import re
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -27,6 +27,7 @@ from hippo_nav.io.errors import DatasetError
 from hippo_nav.io.poses import write_kitti_poses
 from hippo_nav.synthetic.appearance import (
     AppearanceModel,
+    FrameAppearance,
     appearance_level,
     lane_offsets_m,
     pass_indices,
@@ -124,32 +125,19 @@ def render_sequence(
     posts on the pavements (`StreetWorld`: trees, lamp posts and signs, the structure a street has along its
     length besides its walls; docs/render.md).
     """
-    poses = np.asarray(world_from_camera, dtype=np.float64)
-    if poses.ndim != 3 or poses.shape[1:] not in ((4, 4), (3, 4)) or len(poses) == 0:
-        raise DatasetError(f"world_from_camera must have shape (N, 4, 4), got {poses.shape}")
-    if not np.all(np.isfinite(poses)):
-        raise DatasetError("world_from_camera holds NaN or infinity")
-    if poses.shape[1] == 3:
-        poses = np.concatenate([poses, np.tile([[[0.0, 0.0, 0.0, 1.0]]], (len(poses), 1, 1))], axis=1)
+    # Every argument is checked before anything is written, in this order (the first fault is the one named).
+    poses = _checked_world_from_camera(world_from_camera)
     sequence = check_sequence_name(sequence)
     width, height = check_image_size(image_size_px)
     if not (baseline_m > 0 and frame_rate_hz > 0):
         raise DatasetError(f"baseline ({baseline_m} m) and frame rate ({frame_rate_hz} Hz) must be positive")
-    if timestamps_s is None:
-        timestamps_s = np.arange(len(poses)) / frame_rate_hz
-    timestamps_s = np.asarray(timestamps_s, dtype=np.float64).reshape(-1)
-    if len(timestamps_s) != len(poses) or not np.all(np.isfinite(timestamps_s)):
-        raise DatasetError(f"need one finite timestamp per pose: {len(timestamps_s)} for {len(poses)} poses")
-    selected = np.arange(len(poses)) if frames is None else np.asarray(frames, dtype=np.int64).reshape(-1)
-    if selected.size and (selected.min() < 0 or selected.max() >= len(poses)):
-        raise DatasetError(f"frames to render must lie in [0, {len(poses)})")
+    timestamps_s = _checked_timestamps_s(timestamps_s, len(poses), frame_rate_hz)
+    selected = _checked_frames(frames, len(poses))
     appearance_level(appearance)  # an unknown level fails here, before anything is written
-    street = poses[:, :3, 3] if street_path_m is None else np.asarray(street_path_m, dtype=np.float64)
-    if street.ndim != 2 or street.shape[1] != 3:
-        raise DatasetError(f"street_path_m must have shape (M, 3), got {street.shape}")
+    street = _checked_street_path_m(street_path_m, poses)
 
+    # The rig, the street and its appearance (the model checks `passes`, still before any write).
     p0, p1 = stereo_projections((width, height), baseline_m, focal_ratio)
-    K = p0[:, :3]
     world = StreetWorld(
         street,
         street_half_width_m=street_half_width_m,
@@ -158,54 +146,158 @@ def render_sequence(
         poles=poles,
     )
     model = None if appearance == "same" else AppearanceModel(world, appearance, seed, poses, passes)
+
+    # The sequence's text files cover every pose; the images follow, frame by frame.
     root = Path(out_root)
+    sequence_dir = _write_sequence_files(root, sequence, p0, p1, timestamps_s, poses)
+    write_frame = _StereoFrameWriter(
+        world, model, poses, p0[:, :3], (width, height), baseline_m, seed, noise_std, sequence_dir
+    )
+    todo = [int(i) for i in selected if not (keep_existing and _frame_on_disk(sequence_dir, int(i)))]
+    _render_frames(write_frame, todo, len(selected), f"rendering {sequence}", workers, progress)
+    return root
+
+
+def _checked_world_from_camera(world_from_camera: np.ndarray) -> np.ndarray:
+    """The poses as (N, 4, 4) float64: finite, at least one; (N, 3, 4) rows get their [0, 0, 0, 1]."""
+    poses = np.asarray(world_from_camera, dtype=np.float64)
+    if poses.ndim != 3 or poses.shape[1:] not in ((4, 4), (3, 4)) or len(poses) == 0:
+        raise DatasetError(f"world_from_camera must have shape (N, 4, 4), got {poses.shape}")
+    if not np.all(np.isfinite(poses)):
+        raise DatasetError("world_from_camera holds NaN or infinity")
+    if poses.shape[1] == 3:
+        poses = np.concatenate([poses, np.tile([[[0.0, 0.0, 0.0, 1.0]]], (len(poses), 1, 1))], axis=1)
+    return poses
+
+
+def _checked_timestamps_s(timestamps_s: np.ndarray | None, n_poses: int, frame_rate_hz: float) -> np.ndarray:
+    """One finite time (s) per pose: the given ones, else i / `frame_rate_hz`."""
+    if timestamps_s is None:
+        timestamps_s = np.arange(n_poses) / frame_rate_hz
+    timestamps_s = np.asarray(timestamps_s, dtype=np.float64).reshape(-1)
+    if len(timestamps_s) != n_poses or not np.all(np.isfinite(timestamps_s)):
+        raise DatasetError(f"need one finite timestamp per pose: {len(timestamps_s)} for {n_poses} poses")
+    return timestamps_s
+
+
+def _checked_frames(frames: np.ndarray | None, n_poses: int) -> np.ndarray:
+    """The frame indices to render (every pose by default), each in [0, `n_poses`)."""
+    selected = np.arange(n_poses) if frames is None else np.asarray(frames, dtype=np.int64).reshape(-1)
+    if selected.size and (selected.min() < 0 or selected.max() >= n_poses):
+        raise DatasetError(f"frames to render must lie in [0, {n_poses})")
+    return selected
+
+
+def _checked_street_path_m(street_path_m: np.ndarray | None, world_from_camera: np.ndarray) -> np.ndarray:
+    """The (M, 3) path (world frame, m) the street is built along: the camera centres unless given."""
+    street = (
+        world_from_camera[:, :3, 3] if street_path_m is None else np.asarray(street_path_m, dtype=np.float64)
+    )
+    if street.ndim != 2 or street.shape[1] != 3:
+        raise DatasetError(f"street_path_m must have shape (M, 3), got {street.shape}")
+    return street
+
+
+def _write_sequence_files(
+    root: Path,
+    sequence: str,
+    p0: np.ndarray,
+    p1: np.ndarray,
+    timestamps_s: np.ndarray,
+    world_from_camera: np.ndarray,
+) -> Path:
+    """The image folders, calib.txt, times.txt and poses/<sequence>.txt of a KITTI sequence; returns its
+    folder (`root/sequences/<sequence>`)."""
     sequence_dir = root / "sequences" / sequence
     for camera in ("image_0", "image_1"):
         (sequence_dir / camera).mkdir(parents=True, exist_ok=True)
     _write_calibration(sequence_dir / "calib.txt", p0, p1)
     with open_atomic(sequence_dir / "times.txt", "wb") as f:
         np.savetxt(f, timestamps_s, fmt="%.6e")
-    write_kitti_poses(root / "poses" / f"{sequence}.txt", poses)
+    write_kitti_poses(root / "poses" / f"{sequence}.txt", world_from_camera)
+    return sequence_dir
 
-    right_from_left = np.eye(4)
-    right_from_left[0, 3] = baseline_m  # right camera centre, in camera-0 coordinates
 
-    def done(i: int) -> bool:
-        return all((sequence_dir / camera / f"{i:06d}.png").is_file() for camera in ("image_0", "image_1"))
+def _frame_on_disk(sequence_dir: Path, i: int) -> bool:
+    """Both images of frame `i` exist (a frame on disk is complete: images are written atomically)."""
+    return all((sequence_dir / camera / f"{i:06d}.png").is_file() for camera in ("image_0", "image_1"))
 
-    todo = [int(i) for i in selected if not (keep_existing and done(int(i)))]
 
-    def render_frame(i: int) -> None:
+class _StereoFrameWriter:
+    """Renders frame i's stereo pair and writes image_0/ and image_1/`{i:06d}.png` (one call per frame, from
+    any thread: every random draw is seeded by the frame, so the images do not depend on the order)."""
+
+    def __init__(
+        self,
+        world: StreetWorld,
+        model: AppearanceModel | None,
+        world_from_camera: np.ndarray,
+        K: np.ndarray,
+        image_size_px: tuple[int, int],
+        baseline_m: float,
+        seed: int,
+        noise_std: float,
+        sequence_dir: Path,
+    ) -> None:
+        self.world, self.model = world, model
+        self.world_from_camera, self.K, self.image_size_px = world_from_camera, K, image_size_px
+        self.seed, self.noise_std, self.sequence_dir = seed, noise_std, sequence_dir
+        self.right_from_left = np.eye(4)
+        self.right_from_left[0, 3] = baseline_m  # right camera centre, in camera-0 coordinates
+
+    def __call__(self, i: int) -> None:
         # Noise is seeded per frame so the images do not depend on the order threads finish in.
-        noise_rng = np.random.default_rng([seed, i])
-        look = None if model is None else model.frame(i)
-        sensor_rng = np.random.default_rng([seed, i, 0xA99])  # the appearance's noise, apart from noise_std's
-        for camera, pose in (("image_0", poses[i]), ("image_1", poses[i] @ right_from_left)):
-            if model is None or look is None:  # "same": the street as it always was
-                image = world.render(pose, K, (width, height))
-            else:
-                motion = shutter_motion(poses, i)
-                if motion is not None:  # the right camera moves with the rig
-                    motion = np.linalg.inv(right_from_left) @ motion @ right_from_left
-                image = model.render(
-                    pose, K, (width, height), look, camera_from_next=motion, noise_rng=sensor_rng
-                )
-            if noise_std > 0:
-                noisy = image + noise_rng.normal(0.0, noise_std, image.shape)
+        noise_rng = np.random.default_rng([self.seed, i])
+        look = None if self.model is None else self.model.frame(i)
+        # The appearance's own sensor noise, a stream apart from noise_std's.
+        sensor_rng = np.random.default_rng([self.seed, i, 0xA99])
+        left = self.world_from_camera[i]
+        for camera, pose in (("image_0", left), ("image_1", left @ self.right_from_left)):
+            image = self._render(i, pose, look, sensor_rng)
+            if self.noise_std > 0:
+                noisy = image + noise_rng.normal(0.0, self.noise_std, image.shape)
                 image = np.clip(np.rint(noisy), 0, 255).astype(np.uint8)
             # Atomic (a fresh exclusive temporary, renamed): a frame on disk is a complete frame, and a
             # link planted in the folder is replaced, never written through.
-            write_image(sequence_dir / camera / f"{i:06d}.png", image)
+            write_image(self.sequence_dir / camera / f"{i:06d}.png", image)
 
+    def _render(
+        self,
+        i: int,
+        world_from_camera: np.ndarray,
+        look: FrameAppearance | None,
+        sensor_rng: np.random.Generator,
+    ) -> np.ndarray:
+        """One camera's (H, W) uint8 image of frame `i`, before `noise_std`'s noise."""
+        if self.model is None or look is None:  # "same": the street as it always was
+            return self.world.render(world_from_camera, self.K, self.image_size_px)
+        motion = shutter_motion(self.world_from_camera, i)
+        if motion is not None:  # the rig's motion seen from the right camera, as used so far for both cameras
+            motion = np.linalg.inv(self.right_from_left) @ motion @ self.right_from_left
+        return self.model.render(
+            world_from_camera, self.K, self.image_size_px, look, camera_from_next=motion, noise_rng=sensor_rng
+        )
+
+
+def _render_frames(
+    write_frame: Callable[[int], None],
+    todo: list[int],
+    n_selected: int,
+    description: str,
+    workers: int,
+    progress: bool,
+) -> None:
+    """`write_frame` of every frame in `todo` on `workers` threads, with a progress bar over the
+    `n_selected` frames asked for (those already on disk count as done)."""
     bar = None
     if progress:
         from tqdm import tqdm
 
-        bar = tqdm(total=len(selected), initial=len(selected) - len(todo), desc=f"rendering {sequence}",
+        bar = tqdm(total=n_selected, initial=n_selected - len(todo), desc=description,
                    unit="frame", dynamic_ncols=True)  # fmt: skip
     pool = ThreadPoolExecutor(max_workers=max(int(workers), 1))
     try:
-        for _ in pool.map(render_frame, todo):
+        for _ in pool.map(write_frame, todo):
             if bar is not None:
                 bar.update()
     finally:
@@ -213,7 +305,6 @@ def render_sequence(
         pool.shutdown(wait=True, cancel_futures=True)
         if bar is not None:
             bar.close()
-    return root
 
 
 def street_views(
@@ -315,8 +406,6 @@ def render_kitti(
     is, and the written poses are those of the cameras rendered, offsets included. `poles` (recorded in the
     stamp) puts posts on the pavements (`render_sequence`).
     """
-    from hippo_nav.datasets.kitti import read_times
-    from hippo_nav.io.poses import read_kitti_poses
     from hippo_nav.synthetic.trajectories import road_trajectory
 
     # Everything that can refuse the command is checked before the first write: a refused render must not
@@ -324,6 +413,43 @@ def render_kitti(
     sequence = check_sequence_name(sequence)
     image_size_px = check_image_size(image_size_px)
     kitti_root = Path(kitti_root)
+    ground_truth, times_s = _read_kitti_ground_truth(kitti_root, sequence)
+    lo, hi = _checked_frame_range(start, stop, len(ground_truth))
+    appearance_level(appearance)  # an unknown level fails here, before anything is written
+    road = road_trajectory(ground_truth, road_smoothing_m)
+    world_from_camera, passes = _lane_poses(road, appearance, seed)
+    root = Path(out_root)
+    stamp = _render_stamp(ground_truth, image_size_px, road_smoothing_m, seed, appearance, poles)
+    _check_render_root(root, kitti_root, sequence, stamp)
+
+    # The stamp goes first: an interrupted render resumes only with the same settings.
+    sequence_dir = root / "sequences" / sequence
+    sequence_dir.mkdir(parents=True, exist_ok=True)
+    write_text(sequence_dir / "render.json", json.dumps(stamp, sort_keys=True))
+    return render_sequence(
+        world_from_camera,
+        root,
+        sequence,
+        image_size_px,
+        seed=seed,
+        timestamps_s=times_s,
+        frames=np.arange(lo, hi),
+        keep_existing=True,
+        appearance=appearance,
+        street_path_m=None if appearance == "same" else road[:, :3, 3],
+        passes=passes,
+        poles=poles,
+        workers=workers,
+        progress=progress,
+    )
+
+
+def _read_kitti_ground_truth(kitti_root: Path, sequence: str) -> tuple[np.ndarray, np.ndarray]:
+    """(world_from_camera (N, 4, 4), times s (N)) of a KITTI sequence: poses/NN.txt and its times.txt, which
+    must list as many frames."""
+    from hippo_nav.datasets.kitti import read_times
+    from hippo_nav.io.poses import read_kitti_poses
+
     pose_path = kitti_root / "poses" / f"{sequence}.txt"
     times_path = kitti_root / "sequences" / sequence / "times.txt"
     if not pose_path.is_file():
@@ -335,20 +461,42 @@ def render_kitti(
             f"{times_path} lists {len(times)} frames but {pose_path} holds {len(ground_truth)} poses; "
             "they must describe the same sequence"
         )
+    return ground_truth, times
+
+
+def _checked_frame_range(start: int | None, stop: int | None, n_frames: int) -> tuple[int, int]:
+    """[lo, hi): `start`/`stop` (None: the first / past the last frame), non-empty and within the frames."""
     lo = 0 if start is None else int(start)
-    hi = len(ground_truth) if stop is None else int(stop)
-    if not 0 <= lo < hi <= len(ground_truth):
-        raise DatasetError(f"frame range [{lo}, {hi}) is empty or outside the {len(ground_truth)} frames")
-    appearance_level(appearance)  # an unknown level fails here, before anything is written
-    road = road_trajectory(ground_truth, road_smoothing_m)
-    poses, passes = road, None
-    if appearance != "same":
-        # Passes follow the road, not the lanes: the street is driven again whichever lane the camera takes.
-        passes = pass_indices(road[:, :3, 3])
-        offsets_m = lane_offsets_m(smoothed_passes(road[:, :3, 3], passes), appearance, seed)
-        poses = shift_sideways(road, offsets_m)
-    root = Path(out_root)
-    stamp = {
+    hi = n_frames if stop is None else int(stop)
+    if not 0 <= lo < hi <= n_frames:
+        raise DatasetError(f"frame range [{lo}, {hi}) is empty or outside the {n_frames} frames")
+    return lo, hi
+
+
+def _lane_poses(
+    road_world_from_camera: np.ndarray, appearance: str, seed: int
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """(world_from_camera, passes) of the cameras to render: the road poses at "same" (passes left to
+    `render_sequence`), else each shifted sideways into its pass's lane, with the road's pass indices."""
+    if appearance == "same":
+        return road_world_from_camera, None
+    # Passes follow the road, not the lanes: the street is driven again whichever lane the camera takes.
+    road_m = road_world_from_camera[:, :3, 3]
+    passes = pass_indices(road_m)
+    offsets_m = lane_offsets_m(smoothed_passes(road_m, passes), appearance, seed)
+    return shift_sideways(road_world_from_camera, offsets_m), passes
+
+
+def _render_stamp(
+    ground_truth: np.ndarray,
+    image_size_px: tuple[int, int],
+    road_smoothing_m: float,
+    seed: int,
+    appearance: str,
+    poles: bool,
+) -> dict[str, object]:
+    """The settings recorded in render.json: a resumed render must have the same."""
+    stamp: dict[str, object] = {
         "source_poses_sha": _digest(ground_truth),
         "image_size_px": [int(v) for v in image_size_px],
         "road_smoothing_m": float(road_smoothing_m),
@@ -358,6 +506,12 @@ def render_kitti(
         stamp["appearance"] = appearance
     if poles:  # likewise, a street without posts keeps its old stamp
         stamp["poles"] = True
+    return stamp
+
+
+def _check_render_root(root: Path, kitti_root: Path, sequence: str, stamp: dict[str, object]) -> None:
+    """Refuse an output root whose sequence rendering would overwrite: the KITTI root itself, a sequence
+    `hippo-nav render` did not write, or a render with other settings."""
     if root.resolve() == kitti_root.resolve():
         raise DatasetError(
             f"--out {root} is the KITTI root being read: rendering there would overwrite its poses/{sequence}.txt "
@@ -376,21 +530,3 @@ def render_kitti(
             f"{root / 'sequences' / sequence}: holds a render with other settings ({existing}); "
             "choose another --out or delete that folder"
         )
-    sequence_dir.mkdir(parents=True, exist_ok=True)
-    write_text(sequence_dir / "render.json", json.dumps(stamp, sort_keys=True))
-    return render_sequence(
-        poses,
-        root,
-        sequence,
-        image_size_px,
-        seed=seed,
-        timestamps_s=times,
-        frames=np.arange(lo, hi),
-        keep_existing=True,
-        appearance=appearance,
-        street_path_m=None if appearance == "same" else road[:, :3, 3],
-        passes=passes,
-        poles=poles,
-        workers=workers,
-        progress=progress,
-    )
