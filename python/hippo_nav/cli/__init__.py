@@ -17,6 +17,7 @@ from collections.abc import Callable
 from types import ModuleType
 
 from hippo_nav.cli import figures, render, report, run, sweep, vocabulary
+from hippo_nav.cli.common import HelpFormatter
 
 _COMMANDS: dict[str, ModuleType] = {
     "run": run,
@@ -26,7 +27,8 @@ _COMMANDS: dict[str, ModuleType] = {
     "sweep": sweep,
     "report": report,
 }
-"""The commands in the order of the help, each a module with `add_parser(sub)` and `command(args) -> int`."""
+"""The commands in the order of the help, each a module with `HELP`, `DESCRIPTION`, `add_arguments(parser)` and
+`command(args) -> int`."""
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -35,8 +37,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"hippo-nav {_version()}")
     sub = parser.add_subparsers(dest="command", required=True)
-    for module in _COMMANDS.values():
-        module.add_parser(sub)
+    for name, module in _COMMANDS.items():
+        command = sub.add_parser(
+            name, help=module.HELP, description=module.DESCRIPTION, formatter_class=HelpFormatter
+        )
+        module.add_arguments(command)
     return parser
 
 

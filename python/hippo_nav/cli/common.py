@@ -160,3 +160,23 @@ def dataset_input(args: argparse.Namespace) -> tuple[str | None, dict[str, objec
     if topics is not None and not Path(str(topics)).is_file():
         raise HippoNavError(f"--topics {topics}: no such file (a YAML with left_topic, right_topic, …)")
     return kind, options
+
+
+def add_replay_flags(group: argparse._ArgumentGroup, files: str, a_file: str) -> None:
+    """`--odometry-format` and `--odometry-align`, the options of a replayed trajectory file, for `run` (of
+    its `--odometry`) and `sweep` (of its odometry axis's files): `files` and `a_file` name them in the help."""
+    from hippo_nav.vo.replay import ALIGNMENTS, FORMATS
+
+    group.add_argument(
+        "--odometry-format",
+        choices=list(FORMATS),
+        default=None,
+        help=f"format of {files} (default: guessed, 12 numbers a line = kitti, 8 = tum)",
+    )
+    group.add_argument(
+        "--odometry-align",
+        choices=list(ALIGNMENTS),
+        default=None,
+        help=f"how {a_file} lines map to frames: exact (default) one line per frame of the sequence; start: "
+        "line 0 is frame 0, extra lines at the end ignored; end: the last line is the sequence's last frame",
+    )

@@ -5,18 +5,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from hippo_nav.cli.common import HelpFormatter
+HELP = "write the paper's theory figures (or the appearance levels of the synthetic street) as PNG files"
+DESCRIPTION = (
+    "Writes the paper's theory figures (the 1-D theory of multi-resolution grid codes) as PNG "
+    "files; with --appearance, appearance_levels.png instead: one place of the synthetic street at each "
+    "appearance level, on pass 0 and pass 1 (docs/render.md)."
+)
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
-    figures = sub.add_parser(
-        "figures",
-        help="write the paper's theory figures (or the appearance levels of the synthetic street) as PNG files",
-        description="Writes the paper's theory figures (the 1-D theory of multi-resolution grid codes) as PNG "
-        "files; with --appearance, appearance_levels.png instead: one place of the synthetic street at each "
-        "appearance level, on pass 0 and pass 1 (docs/render.md).",
-        formatter_class=HelpFormatter,
-    )
+def add_arguments(figures: argparse.ArgumentParser) -> None:
     figures.add_argument("--out", default="runs/figures", help="folder for the PNG files")
     figures.add_argument(
         "--appearance",

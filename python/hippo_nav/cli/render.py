@@ -5,24 +5,21 @@ from __future__ import annotations
 import argparse
 import sys
 
-from hippo_nav.cli.common import HelpFormatter
+HELP = "render the synthetic stereo street along a KITTI ground truth into a KITTI root"
+DESCRIPTION = (
+    "Renders a synthetic stereo sequence along ROOT/poses/NN.txt with the timestamps of "
+    "ROOT/sequences/NN/times.txt into a KITTI root at --out (images, calib.txt, times.txt, poses/NN.txt). "
+    "The camera keeps a fixed height above the road; with --appearance same (the default) every pass sees "
+    "a street the same way, with mild or strong a place looks different on each pass (light, shadows, "
+    "shop fronts and posters, parked cars, noise, blur, vignetting, another lane; docs/render.md). "
+    "Resumable: frames already written are kept. Run it afterwards with "
+    "`hippo-nav run --dataset OUT --sequence NN`."
+)
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
+def add_arguments(render: argparse.ArgumentParser) -> None:
     from hippo_nav.synthetic.appearance import APPEARANCE_LEVELS
 
-    render = sub.add_parser(
-        "render",
-        help="render the synthetic stereo street along a KITTI ground truth into a KITTI root",
-        description="Renders a synthetic stereo sequence along ROOT/poses/NN.txt with the timestamps of "
-        "ROOT/sequences/NN/times.txt into a KITTI root at --out (images, calib.txt, times.txt, poses/NN.txt). "
-        "The camera keeps a fixed height above the road; with --appearance same (the default) every pass sees "
-        "a street the same way, with mild or strong a place looks different on each pass (light, shadows, "
-        "shop fronts and posters, parked cars, noise, blur, vignetting, another lane; docs/render.md). "
-        "Resumable: frames already written are kept. Run it afterwards with "
-        "`hippo-nav run --dataset OUT --sequence NN`.",
-        formatter_class=HelpFormatter,
-    )
     render.add_argument("--kitti", metavar="ROOT", required=True, help="KITTI root with poses/NN.txt")
     render.add_argument("--sequence", required=True, help="sequence number, e.g. 00")
     render.add_argument("--start", type=int, default=None, help="first frame to render (default 0)")

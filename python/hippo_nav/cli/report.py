@@ -5,22 +5,19 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from hippo_nav.cli.common import HelpFormatter
+HELP = "one table (CSV, Markdown), statistics over seeds and figures from sweep and run folders"
+DESCRIPTION = (
+    "Reads sweep folders (OUT/runs/*/manifest.json) and plain `hippo-nav run` folders (any "
+    "folder holding metrics.json, searched below each DIR) and writes into --out: table.csv and table.md "
+    "(one row per run: what it varies, its metrics and timings), groups.csv and the grouped statistics "
+    "over seeds in table.md (mean, std, n, 95 %% confidence interval), figures (ATE per configuration with "
+    "the seeds as points, the trajectories of one sequence overlaid, a metric against one swept key) and, "
+    "when the runs differ in lesions, lesions.md (place-bump width and path-integration error per lesion "
+    "against the 1-D theory's order)."
+)
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
-    report = sub.add_parser(
-        "report",
-        help="one table (CSV, Markdown), statistics over seeds and figures from sweep and run folders",
-        description="Reads sweep folders (OUT/runs/*/manifest.json) and plain `hippo-nav run` folders (any "
-        "folder holding metrics.json, searched below each DIR) and writes into --out: table.csv and table.md "
-        "(one row per run: what it varies, its metrics and timings), groups.csv and the grouped statistics "
-        "over seeds in table.md (mean, std, n, 95 %% confidence interval), figures (ATE per configuration with "
-        "the seeds as points, the trajectories of one sequence overlaid, a metric against one swept key) and, "
-        "when the runs differ in lesions, lesions.md (place-bump width and path-integration error per lesion "
-        "against the 1-D theory's order).",
-        formatter_class=HelpFormatter,
-    )
+def add_arguments(report: argparse.ArgumentParser) -> None:
     report.add_argument("dirs", nargs="+", metavar="DIR", help="sweep or run folders")
     report.add_argument(
         "--out", default=None, help="report folder (default: DIR/report for one DIR, else runs/report)"

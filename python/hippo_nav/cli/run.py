@@ -8,7 +8,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from hippo_nav.cli.common import MAX_SEED, SIGNAL_EXIT, HelpFormatter, add_input_flags, dataset_input
+from hippo_nav.cli.common import MAX_SEED, SIGNAL_EXIT, add_input_flags, add_replay_flags, dataset_input
 
 if TYPE_CHECKING:
     from hippo_nav.pipeline import RunResult
@@ -16,16 +16,18 @@ if TYPE_CHECKING:
     from hippo_nav.viewer.video import VideoObserver
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
+HELP = (
+    "run the SLAM pipeline on a stereo sequence (the built-in synthetic demo loop when no dataset is given)"
+)
+DESCRIPTION = (
+    "Stereo VO (or another system's odometry, replayed with --odometry), spatial-memory "
+    "network, view cells and experience map on every frame; writes trajectories (KITTI and TUM), the "
+    "map, metrics.json, the resolved config and figures into --out."
+)
+
+
+def add_arguments(run: argparse.ArgumentParser) -> None:
     """`hippo-nav run`: its choices come from the loader registry, the module names and the replay formats."""
-    run = sub.add_parser(
-        "run",
-        help="run the SLAM pipeline on a stereo sequence (the built-in synthetic demo loop when no dataset is given)",
-        description="Stereo VO (or another system's odometry, replayed with --odometry), spatial-memory "
-        "network, view cells and experience map on every frame; writes trajectories (KITTI and TUM), the "
-        "map, metrics.json, the resolved config and figures into --out.",
-        formatter_class=HelpFormatter,
-    )
     data = run.add_argument_group("input")
     options = run.add_argument_group("loader options", "keywords of the loaders that take them")
     add_input_flags(data, stride_default=1, loader_group=options)
@@ -65,7 +67,6 @@ def _add_configuration(setup: argparse._ArgumentGroup) -> None:
 
 
 def _add_odometry(odometry: argparse._ArgumentGroup) -> None:
-    from hippo_nav.vo.replay import ALIGNMENTS, FORMATS
 
     odometry.add_argument(
         "--odometry",
@@ -73,20 +74,7 @@ def _add_odometry(odometry: argparse._ArgumentGroup) -> None:
         help="replay another system's trajectory (KITTI or TUM file) instead of the built-in stereo VO "
         "(default: none, the built-in stereo VO)",
     )
-    odometry.add_argument(
-        "--odometry-format",
-        choices=list(FORMATS),
-        default=None,
-        help="format of --odometry (default: guessed, 12 numbers a line = kitti, 8 = tum)",
-    )
-    odometry.add_argument(
-        "--odometry-align",
-        choices=list(ALIGNMENTS),
-        default=None,
-        help="how a KITTI --odometry file's lines map to frames: exact (default) one line per frame of the "
-        "sequence; start: line 0 is frame 0, extra lines at the end ignored; end: the last line is the "
-        "sequence's last frame",
-    )
+    add_replay_flags(odometry, "--odometry", "a KITTI --odometry file's")
 
 
 def _add_output(output: argparse._ArgumentGroup) -> None:

@@ -5,22 +5,21 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from hippo_nav.cli.common import HelpFormatter, add_input_flags, loader_options
+from hippo_nav.cli.common import add_input_flags, add_replay_flags, loader_options
+
+HELP = "run the pipeline over a cross-product of settings × seeds × sequences × odometries, on Ray"
+DESCRIPTION = (
+    "Runs `hippo-nav run` for every combination of the axes (from the command line and/or a "
+    "TOML/YAML sweep file, docs/sweep.md) on Ray: on this machine by default, or on a cluster with "
+    "--address. Each run writes its results folder and manifest.json into OUT/runs/<id>/. Rerunning the "
+    "same command skips finished runs and reruns interrupted ones; a failing run is listed and never "
+    "stops the others; Ctrl-C stops cleanly. Exit 0: every run done; 1: some failed; 130: interrupted. "
+    "Needs pip install 'hippo-nav[sweep]'."
+)
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
+def add_arguments(sweep: argparse.ArgumentParser) -> None:
     """`hippo-nav sweep`: the space (a file and/or axes), `run`'s input flags, and how the runs execute."""
-    sweep = sub.add_parser(
-        "sweep",
-        help="run the pipeline over a cross-product of settings × seeds × sequences × odometries, on Ray",
-        description="Runs `hippo-nav run` for every combination of the axes (from the command line and/or a "
-        "TOML/YAML sweep file, docs/sweep.md) on Ray: on this machine by default, or on a cluster with "
-        "--address. Each run writes its results folder and manifest.json into OUT/runs/<id>/. Rerunning the "
-        "same command skips finished runs and reruns interrupted ones; a failing run is listed and never "
-        "stops the others; Ctrl-C stops cleanly. Exit 0: every run done; 1: some failed; 130: interrupted. "
-        "Needs pip install 'hippo-nav[sweep]'.",
-        formatter_class=HelpFormatter,
-    )
     _add_space(
         sweep.add_argument_group("the space (the command line replaces a file's axis of the same name)")
     )
@@ -38,7 +37,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def _add_space(space: argparse._ArgumentGroup) -> None:
-    from hippo_nav.vo.replay import ALIGNMENTS, FORMATS
 
     space.add_argument(
         "file", nargs="?", metavar="SWEEP_FILE", help="sweep file (.toml, .yaml) (default: none)"
@@ -64,18 +62,7 @@ def _add_space(space: argparse._ArgumentGroup) -> None:
         "--odometry", metavar="vo,drift,FILE", help="odometries: vo (built-in), drift (the ground truth drifted "
         "1 %%), a trajectory file replayed as with run --odometry (default: vo)",
     )  # fmt: skip
-    space.add_argument(
-        "--odometry-format",
-        choices=list(FORMATS),
-        default=None,
-        help="format of the files (default: guessed)",
-    )
-    space.add_argument(
-        "--odometry-align",
-        choices=list(ALIGNMENTS),
-        default=None,
-        help="alignment of KITTI files (default: exact)",
-    )
+    add_replay_flags(space, "the files", "a KITTI file's")
 
 
 def _add_execution(execution: argparse._ArgumentGroup) -> None:

@@ -7,22 +7,20 @@ import argparse
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from hippo_nav.cli.common import HelpFormatter
-
 if TYPE_CHECKING:
     import numpy as np
 
 
-def add_parser(sub: argparse._SubParsersAction) -> None:
-    vocabulary = sub.add_parser(
-        "vocabulary",
-        help="train the word view cells' vocabulary (on your images, or remake the shipped one)",
-        description="Trains a vocabulary of binary words for the word view cells (docs/views.md) on the ORB "
-        "features of the images in --images (every PNG/JPEG in the folder, gray or colour), or, without "
-        "--images, on the procedural street renders the shipped vocabulary was trained on (the result is "
-        "then the shipped file). Use it with the config's view_words.vocabulary = FILE.",
-        formatter_class=HelpFormatter,
-    )
+HELP = "train the word view cells' vocabulary (on your images, or remake the shipped one)"
+DESCRIPTION = (
+    "Trains a vocabulary of binary words for the word view cells (docs/views.md) on the ORB "
+    "features of the images in --images (every PNG/JPEG in the folder, gray or colour), or, without "
+    "--images, on the procedural street renders the shipped vocabulary was trained on (the result is "
+    "then the shipped file). Use it with the config's view_words.vocabulary = FILE."
+)
+
+
+def add_arguments(vocabulary: argparse.ArgumentParser) -> None:
     vocabulary.add_argument("--out", required=True, metavar="FILE", help="vocabulary file to write")
     vocabulary.add_argument(
         "--images", metavar="DIR", default=None, help="folder of training images (default: the renders)"
