@@ -6,30 +6,6 @@ run starts inside it (`hippo-nav run ... --map PREVIOUS_RESULTS`, or `SlamSystem
 lost until a familiar view is confirmed by the closure measurement, then placed in the old map and extending it.
 """
 
-from hippo_nav.memory.files import (
-    FORMAT,
-    MEMORY_FOLDER,
-    VERSION,
-    SavedMemory,
-    SavedMemoryError,
-    check_compatible,
-    memory_folder,
-    read_memory,
-    split_ragged,
-    stack_ragged,
-    write_memory,
-)
-
-__all__ = [
-    "FORMAT",
-    "MEMORY_FOLDER",
-    "VERSION",
-    "SavedMemory",
-    "SavedMemoryError",
-    "check_compatible",
-    "memory_folder",
-    "read_memory",
-    "split_ragged",
-    "stack_ragged",
-    "write_memory",
-]
+# The package's names are those of `files.py`, listed once there.
+from hippo_nav.memory.files import *
+from hippo_nav.memory.files import __all__ as __all__
