@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import types
+from collections.abc import Callable
 from functools import cache
 from typing import Any, Union, get_args, get_origin
 
@@ -52,6 +53,29 @@ def dotted(data: dict[str, Any], prefix: str = "") -> dict[str, Any]:
         else:
             flat[f"{prefix}{key}"] = value
     return flat
+
+
+def move_keys(
+    data: dict[str, object], where: Callable[[str], tuple[str, ...] | None]
+) -> tuple[dict[str, object], list[tuple[str, str]]]:
+    """`data` with every key that `where` gives a new place (`(name,)` or `(section, name)`) moved there, and
+    (old key, new dotted key) per key moved: how a section reads the spellings of older config files. A
+    value already at the new place wins over the old spelling; a section that is not a mapping is left as it
+    is, for validation to refuse."""
+    out, moved = dict(data), []
+    for key in list(out):
+        path = where(key)
+        if path is None:
+            continue
+        value = out.pop(key)
+        if len(path) == 1:
+            out.setdefault(path[0], value)
+        else:
+            section = out.get(path[0], {})
+            if isinstance(section, dict):
+                out[path[0]] = {path[1]: value, **section}
+        moved.append((key, ".".join(path)))
+    return out, moved
 
 
 def _wrong_kind(annotation: Any, value: Any) -> str | None:

@@ -33,6 +33,7 @@ def _config(**sections):
     return config_from_dict({**QUIET, "parts": parts, **sections})
 
 
+@pytest.mark.slow
 def test_a_toy_descriptor_and_proposer_run_the_demo_and_live_on_in_its_map(toys, tmp_path):
     config = _config(thumbnail_cells={"threshold": 0.4}, closure={"nearest": {"radius_m": 5.0}})
     first = run(tmp_path / "first", config=config, progress=False)
@@ -60,6 +61,7 @@ def test_a_toy_descriptor_and_proposer_run_the_demo_and_live_on_in_its_map(toys,
         run(tmp_path / "third", config=other, progress=False, memory_from=tmp_path / "first")
 
 
+@pytest.mark.slow
 def test_a_resumed_run_gives_each_proposer_its_saved_state(toys, tmp_path):
     from hippo_nav.pipeline import SlamSystem
 
@@ -81,6 +83,7 @@ def first_calibration():
     return open_input(stop=1).calibration
 
 
+@pytest.mark.slow
 def test_a_proposer_is_removed_or_reordered_in_the_config_alone(toys):
     counts = {}
     for chain in (["nearest", "view_cell"], ["view_cell", "nearest"], ["view_cell"]):

@@ -13,7 +13,7 @@ from typing import ClassVar, Literal
 
 from pydantic import ConfigDict, Field
 
-from hippo_nav._defaults import ConfigSection
+from hippo_nav._defaults import ConfigSection, move_keys
 from hippo_nav.plugs import Part, PartSections
 
 
@@ -151,20 +151,14 @@ def migrate_flat_closure(
             if not on and switch in proposers:
                 proposers.remove(switch)
             moved.append(f"closure.{switch} = {str(on).lower()} → parts.closure {proposers}")
-    for key in list(closure):
-        path = _MOVED.get(key)
-        if path is None:
-            prefix = next((p for p in _PREFIXED if key.startswith(f"{p}_")), None)
-            if prefix is None:
-                continue
-            path = (prefix, key[len(prefix) + 1 :])
-        value = closure.pop(key)
-        if len(path) == 1:
-            closure.setdefault(path[0], value)
-        else:
-            section = closure.get(path[0])
-            section = dict(section) if isinstance(section, dict) else {}
-            section.setdefault(path[1], value)
-            closure[path[0]] = section
-        moved.append(f"closure.{key} → closure.{'.'.join(path)}")
+    closure, renamed = move_keys(closure, _new_place)
+    moved += [f"closure.{old} → closure.{new}" for old, new in renamed]
     return closure, proposers, moved
+
+
+def _new_place(key: str) -> tuple[str, ...] | None:
+    """Where a flat key of the `closure` section lives now (None: it has not moved)."""
+    if key in _MOVED:
+        return _MOVED[key]
+    prefix = next((p for p in _PREFIXED if key.startswith(f"{p}_")), None)
+    return None if prefix is None else (prefix, key[len(prefix) + 1 :])

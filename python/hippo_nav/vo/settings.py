@@ -11,7 +11,7 @@ from typing import Annotated, Literal
 
 from pydantic import ConfigDict, Field, model_validator
 
-from hippo_nav._defaults import ConfigSection, rust_default
+from hippo_nav._defaults import ConfigSection, move_keys, rust_default
 
 log = logging.getLogger("hippo_nav.vo")
 
@@ -272,19 +272,14 @@ class VoParams(ConfigSection):
     def _read_flat_window_keys(cls, data: object) -> object:
         """Configs written before the window had a section of its own (`vo.window_keyframes` →
         `vo.window.max_keyframes`, …) read as they meant, with a warning naming the new spelling."""
-        if not isinstance(data, dict) or not any(key in _MOVED_WINDOW_KEYS for key in data):
+        if not isinstance(data, dict):
             return data
-        data, window = dict(data), data.get("window", {})
-        window = dict(window) if isinstance(window, dict) else window
-        for old, new in _MOVED_WINDOW_KEYS.items():
-            if old in data:
-                value = data.pop(old)
-                if isinstance(window, dict):
-                    window.setdefault(new, value)
-                log.warning(
-                    "config: vo.%s → vo.window.%s (the old spelling still reads; write the new one)", old, new
-                )
-        return {**data, "window": window}
+        data, moved = move_keys(
+            data, lambda key: ("window", _MOVED_WINDOW_KEYS[key]) if key in _MOVED_WINDOW_KEYS else None
+        )
+        for old, new in moved:
+            log.warning("config: vo.%s → vo.%s (the old spelling still reads; write the new one)", old, new)
+        return data
 
     def window_params_json(self) -> str:
         """The JSON of the Rust window's `WindowParams`: this section's `window`, and the VO's
