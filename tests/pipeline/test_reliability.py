@@ -46,7 +46,7 @@ def test_a_bad_results_folder_is_refused_before_any_frame(tmp_path, capsys):
     assert main(["run", "--sequence", "05", "--no-progress"]) == 2
     assert "--sequence 05 needs --kitti" in _one_line_error(capsys)
     assert main([*base, "--seed", "-1", "--out", str(tmp_path / "s")]) == 2
-    assert "--seed -1" in _one_line_error(capsys)
+    assert "argument --seed: '-1' is out of range" in _one_line_error(capsys)
 
 
 def test_an_earlier_run_is_never_mixed_with_a_new_one(tmp_path, capsys):
@@ -92,7 +92,7 @@ def test_a_second_run_into_a_folder_being_written_is_refused(tmp_path, capsys):
     from hippo_nav.pipeline.results import prepare_results_folder
 
     out = tmp_path / "shared"
-    _, lock = prepare_results_folder(out)  # the first run, still writing
+    _, lock, _ = prepare_results_folder(out)  # the first run, still writing
     for extra in ([], ["--overwrite"]):
         assert main(["run", "--no-progress", "--stop", "2", "--no-figures", "--out", str(out), *extra]) == 2
         assert "another run is writing" in _one_line_error(capsys)

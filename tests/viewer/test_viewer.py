@@ -7,6 +7,7 @@ import argparse
 import re
 import socket
 import sys
+import threading
 from pathlib import Path
 from types import SimpleNamespace
 
@@ -279,6 +280,24 @@ def test_rerun_flush_that_fails_does_not_stop_the_run(caplog):
     assert "did not take the last data" in caplog.text and observer.rec.closed
 
 
+def test_a_program_on_the_viewers_port_that_never_answers_does_not_hold_the_run(monkeypatch, caplog):
+    """Another program holding port 9876 takes the connection and never answers: the close (and Rerun's
+    exit handler, which waits for the same connection) must not hold a finished run for ever."""
+    monkeypatch.setattr(rerun_viewer, "FLUSH_TIMEOUT_S", 0.2)
+    rr = FakeRerun()
+    unregistered = []
+    rr.unregister_shutdown = lambda: unregistered.append(True)
+    observer = RerunObserver("rerun+http://127.0.0.1:9/proxy", rr=rr)
+    never = threading.Event()
+    observer.rec.disconnect = never.wait  # blocks for ever
+    closed = threading.Thread(target=observer.close, daemon=True)
+    closed.start()
+    closed.join(10)
+    never.set()
+    assert not closed.is_alive(), "close() waited for the program on the port"
+    assert unregistered == [True] and "did not close the connection" in caplog.text
+
+
 # ------------------------------------------------------------------------------------------------
 # The shared panels
 
@@ -364,7 +383,11 @@ def test_missing_viewer_extra_is_one_line_and_exit_2(tmp_path, monkeypatch, caps
 
 
 @pytest.mark.parametrize(
-    ("flags", "says"), [(["--video-every", "0"], "--video-every 0"), (["--rerun", "run.txt"], ".rrd")]
+    ("flags", "says"),
+    [
+        (["--video-every", "0"], "argument --video-every: '0' is out of range"),
+        (["--rerun", "run.txt"], ".rrd"),
+    ],
 )
 def test_bad_viewer_flags_are_one_line_and_exit_2(tmp_path, capsys, flags, says):
     assert main(["run", "--out", str(tmp_path / "x"), "--no-progress", "--stop", "3", *flags]) == 2

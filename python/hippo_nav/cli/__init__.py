@@ -15,6 +15,7 @@ import argparse
 import sys
 from collections.abc import Callable
 from types import ModuleType
+from typing import NoReturn
 
 from hippo_nav.cli import figures, render, report, run, sweep, vocabulary
 from hippo_nav.cli.common import HelpFormatter
@@ -31,8 +32,15 @@ _COMMANDS: dict[str, ModuleType] = {
 `command(args) -> int`."""
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse, but a bad option is one line like every other bad input (not the whole usage first)."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(2, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = _Parser(
         prog="hippo-nav", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
     parser.add_argument("--version", action="version", version=f"hippo-nav {_version()}")
@@ -52,7 +60,10 @@ def _version() -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    args = build_parser().parse_args(argv)
+    try:
+        args = build_parser().parse_args(argv)
+    except SystemExit as stop:  # --help, --version (0) or a bad option (2: argparse printed the one line)
+        return stop.code if isinstance(stop.code, int) else 2
     import logging
 
     from hippo_nav._core import HippoNavError
@@ -63,9 +74,14 @@ def main(argv: list[str] | None = None) -> int:
     command: Callable[[argparse.Namespace], int] = _COMMANDS[args.command].command
     try:
         return command(args)
-    except (HippoNavError, OSError) as err:
+    except HippoNavError as err:
         # Bad input: one line saying what to fix. Anything else is a bug and keeps its traceback.
         print(f"hippo-nav: error: {err}", file=sys.stderr)
+        return 2
+    except OSError as err:  # a file that cannot be read or written: in words, naming it (no "[Errno N]")
+        from hippo_nav.io.errors import os_error_words
+
+        print(f"hippo-nav: error: {os_error_words(err)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:  # before the pipeline started (e.g. while rendering the demo)
         print("hippo-nav: interrupted", file=sys.stderr)

@@ -19,6 +19,7 @@ import contextlib
 import errno
 import os
 import secrets
+import shutil
 from collections.abc import Iterator
 from pathlib import Path
 from typing import IO
@@ -30,8 +31,10 @@ from hippo_nav._core import HippoNavError
 
 __all__ = [
     "WriteError",
+    "atomic_folder",
     "atomic_path",
     "open_atomic",
+    "open_lock",
     "write_bytes",
     "write_image",
     "write_text",
@@ -146,6 +149,79 @@ def write_image(path: str | Path, image: np.ndarray, params: list[int] | None = 
             path, f"OpenCV could not encode a {image.shape} {image.dtype} image as {path.suffix}"
         )
     return write_bytes(path, encoded.tobytes())
+
+
+@contextlib.contextmanager
+def atomic_folder(path: str | Path) -> Iterator[Path]:
+    """A fresh, empty folder beside `path` to fill (with this module's writers); when the block ends without
+    an error it takes `path`'s place whole, else it is removed and `path` is untouched. Whatever was at
+    `path` is replaced, never written into: a folder is moved aside and removed after the swap, a link is
+    removed (its target, perhaps another run's folder, is left as it was). Between the two renames a
+    reader finds no folder for an instant, never a mixed one."""
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise WriteError(path.parent, _reason(err)) from None
+    staging = _fresh_folder(path, "new")
+    try:
+        try:
+            yield staging
+        except OSError as err:
+            raise WriteError(path, _reason(err)) from None
+        old = None
+        try:
+            if path.is_symlink() or path.is_file():
+                path.unlink()
+            elif path.is_dir():
+                old = _fresh_name(path, "old")
+                os.rename(path, old)
+            os.rename(staging, path)
+        except OSError as err:
+            if old is not None and not path.exists():
+                os.rename(old, path)  # the earlier folder back where it was
+            raise WriteError(path, _reason(err)) from None
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    except BaseException:
+        shutil.rmtree(staging, ignore_errors=True)
+        raise
+
+
+def _fresh_name(path: Path, tag: str) -> Path:
+    return path.with_name(f".{path.name}.{tag}-{secrets.token_hex(4)}")
+
+
+def _fresh_folder(path: Path, tag: str) -> Path:
+    """A new folder beside `path` (`mkdir` never opens an existing name), with a plain folder's permissions."""
+    for _ in range(100):
+        folder = _fresh_name(path, tag)
+        try:
+            folder.mkdir(0o777)
+            return folder
+        except FileExistsError:
+            continue
+        except OSError as err:
+            raise WriteError(path, _reason(err)) from None
+    raise WriteError(path, "no free temporary name beside it")
+
+
+def open_lock(path: str | Path) -> IO[str]:
+    """A lock or mark file opened for reading and writing (created when missing) without following a link
+    at its name (`O_NOFOLLOW`: a link planted there is refused, not written through); for files that are
+    held open and `flock`ed for a whole run rather than written once. A link or another failure is a
+    `WriteError` naming the file."""
+    path = Path(path)
+    flags = os.O_RDWR | os.O_CREAT | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_CLOEXEC", 0)
+    try:
+        fd = os.open(path, flags, 0o666)
+    except OSError as err:
+        if err.errno == errno.ELOOP:
+            raise WriteError(
+                path, "it is a symbolic link; remove the link (a lock file must be a plain file)"
+            ) from None
+        raise WriteError(path, _reason(err)) from None
+    return os.fdopen(fd, "r+", encoding="utf-8")
 
 
 def _replace(tmp: Path, path: Path) -> None:

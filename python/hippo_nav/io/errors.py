@@ -23,6 +23,15 @@ def file_error(path: str | Path, problem: str, line: int | None = None) -> Datas
     return DatasetError(f"{where}: {problem}")
 
 
+def os_error_words(err: OSError) -> str:
+    """An operating-system error as one plain line naming the file(s): "no such file or directory:
+    runs/x/metrics.json", not Python's `[Errno 2] No such file or directory: '…'`."""
+    what = (err.strerror or type(err).__name__).rstrip(".")
+    what = what[:1].lower() + what[1:]
+    names = [str(n) for n in (err.filename, err.filename2) if n is not None]
+    return f"{what}: {' → '.join(names)}" if names else what
+
+
 MAX_DATA_FILE_BYTES = 256 * 2**20
 """The largest text data file read (poses, timestamps, image lists; a KITTI pose file has 0.5 MB, EuRoC's
 200 Hz ground truth 2–5 MB a sequence): a bigger one is refused before it is read."""

@@ -25,9 +25,34 @@ from hippo_nav.io.errors import DatasetError, file_error, read_text
 # Files are often written with 6–9 significant digits, so exactness cannot be asked for; a corrupt or
 # transposed-with-translation line is off by far more.
 ROTATION_TOLERANCE = 1e-3
+MAX_COORDINATE_M = 1e9
+"""Largest |x|, |y|, |z| of a position read (a million km: far beyond any trajectory, metres or millimetres).
+A larger number is a corrupt or mis-scaled file, and would overflow the error metrics' squares."""
+MAX_TIMESTAMP_S = 1e11
+"""Largest |timestamp| in seconds read (3 000 years; Unix time is 1.7e9 s): a larger one is in another unit
+(milli- or nanoseconds), and differences of two would overflow."""
+
+
+def check_regular_file(path: Path, what: str, hint: str) -> None:
+    """A `DatasetError` unless `path` is a regular file: missing (`hint` says what is expected there), a folder,
+    or a FIFO or device (opening a FIFO with no writer would wait for ever)."""
+    if path.is_file():
+        return
+    if path.is_dir():
+        raise DatasetError(f"{path}: is a folder, not a {what}; {hint}")
+    if path.exists():
+        raise DatasetError(f"{path}: is not a regular file (a FIFO, socket or device); give a {what}")
+    raise DatasetError(f"{path}: {what} not found; {hint}")
 
 
 def _check_rotation(rotation: np.ndarray, path: Path, line: int) -> None:
+    if np.abs(rotation).max() > 1.0 + ROTATION_TOLERANCE:  # checked first: RᵀR of 1e200s overflows
+        raise file_error(
+            path,
+            f"the 3x3 block is not a rotation (it holds {np.abs(rotation).max():.4g}; a rotation's entries lie "
+            "in [-1, 1]); each line must hold a proper rotation [R | t], row-major",
+            line,
+        )
     gram_error = np.abs(rotation.T @ rotation - np.eye(3)).max()
     det = np.linalg.det(rotation)
     if gram_error > ROTATION_TOLERANCE or abs(det - 1.0) > ROTATION_TOLERANCE:
@@ -52,10 +77,19 @@ def _numbers(text: str, path: Path, line: int, expected: int, what: str) -> np.n
     return values
 
 
+def _check_position(position: np.ndarray, path: Path, line: int) -> None:
+    if np.abs(position).max() > MAX_COORDINATE_M:
+        raise file_error(
+            path,
+            f"position {np.abs(position).max():.4g} m from the origin along an axis; positions are metres, at "
+            f"most {MAX_COORDINATE_M:g} (a corrupt or mis-scaled file?)",
+            line,
+        )
+
+
 def _lines(path: str | Path) -> tuple[Path, list[str]]:
     path = Path(path)
-    if not path.is_file():
-        raise DatasetError(f"{path}: pose file not found (check the path)")
+    check_regular_file(path, "pose file", "check the path (a KITTI or TUM trajectory, one pose a line)")
     try:
         text = read_text(path, "pose file")  # bounded in size, one line for a byte that is not UTF-8
     except OSError as err:
@@ -77,6 +111,7 @@ def read_kitti_poses(path: str | Path) -> np.ndarray:
             raise file_error(path, "blank line inside the file (line N must be frame N)", i + 1)
         poses[i, :3, :4] = _numbers(text, path, i + 1, 12, "a row-major 3x4 pose").reshape(3, 4)
         _check_rotation(poses[i, :3, :3], path, i + 1)
+        _check_position(poses[i, :3, 3], path, i + 1)
     return poses
 
 
@@ -144,7 +179,21 @@ def read_tum(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         if not stripped or stripped.startswith("#"):
             continue
         values = _numbers(stripped.replace(",", " "), path, i + 1, 8, "timestamp x y z qx qy qz qw")
+        if abs(values[0]) > MAX_TIMESTAMP_S:
+            raise file_error(
+                path,
+                f"timestamp {values[0]:.6g} s is beyond ±{MAX_TIMESTAMP_S:g} s; TUM timestamps are seconds "
+                "(milli- or nanoseconds?)",
+                i + 1,
+            )
+        _check_position(values[1:4], path, i + 1)
         quaternion = values[4:]
+        # A component beyond 1 is no unit quaternion; checked first, as the norm of 1e200s overflows.
+        if np.abs(quaternion).max() > 2.0:
+            biggest = np.abs(quaternion).max()
+            raise file_error(
+                path, f"quaternion norm is over {biggest:.6g}, expected 1 (qx qy qz qw order)", i + 1
+            )
         norm = np.linalg.norm(quaternion)
         if abs(norm - 1.0) > ROTATION_TOLERANCE:
             raise file_error(path, f"quaternion norm is {norm:.6g}, expected 1 (qx qy qz qw order)", i + 1)

@@ -34,7 +34,7 @@ import numpy as np
 from hippo_nav._core import HippoNavError
 from hippo_nav._defaults import dotted
 from hippo_nav.io import atomic
-from hippo_nav.io.errors import read_bytes
+from hippo_nav.io.errors import os_error_words, read_bytes
 
 __all__ = [
     "FORMAT",
@@ -43,6 +43,7 @@ __all__ = [
     "SavedMemory",
     "SavedMemoryError",
     "check_compatible",
+    "check_parts_agree",
     "memory_folder",
     "read_memory",
     "split_ragged",
@@ -117,9 +118,10 @@ def _npz_bytes(arrays: dict[str, np.ndarray], compressed: bool = False) -> bytes
 
 
 def write_memory(memory: SavedMemory, folder: str | Path) -> Path:
-    """Write `memory` into `folder` (made if needed): each file atomically, the manifest last."""
+    """Write `memory` as `folder`: filled beside it and swapped in whole (`atomic.atomic_folder`), so an
+    earlier memory there stays intact until the new one is complete, and a link at `folder` (another run's
+    memory) is replaced, never written through. The manifest is written last."""
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
     payloads = {
         "map.bin": memory.map_bytes,
         "views.npz": _npz_bytes(memory.views),
@@ -128,12 +130,13 @@ def write_memory(memory: SavedMemory, folder: str | Path) -> Path:
         # defaults); compressed it is a small fraction of that.
         "state.npz": _npz_bytes(memory.state, compressed=True),
     }
-    files = {}
-    for name, data in payloads.items():
-        atomic.write_bytes(folder / name, data)
-        files[name] = {"bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
-    manifest = {"format": FORMAT, "version": VERSION, "files": files, **memory.info}
-    atomic.write_text(folder / MANIFEST, json.dumps(manifest, indent=1, allow_nan=False) + "\n")
+    with atomic.atomic_folder(folder) as staging:
+        files = {}
+        for name, data in payloads.items():
+            atomic.write_bytes(staging / name, data)
+            files[name] = {"bytes": len(data), "sha256": hashlib.sha256(data).hexdigest()}
+        manifest = {"format": FORMAT, "version": VERSION, "files": files, **memory.info}
+        atomic.write_text(staging / MANIFEST, json.dumps(manifest, indent=1, allow_nan=False) + "\n")
     return folder
 
 
@@ -154,8 +157,12 @@ def read_memory(path: str | Path) -> SavedMemory:
         )
     try:
         manifest = json.loads(read_bytes(manifest_path, "memory manifest", _MAX_MANIFEST_BYTES))
-    except (ValueError, OSError) as err:
-        raise _fail(folder, f"memory.json cannot be read ({err}); it is truncated or corrupted") from err
+    except RecursionError:  # nested deeper than any manifest this package writes (a few levels)
+        raise _fail(folder, "memory.json is nested too deeply to be a manifest; it is corrupted") from None
+    except OSError as err:
+        raise _fail(folder, f"memory.json cannot be read ({os_error_words(err)})") from None
+    except ValueError as err:
+        raise _fail(folder, f"memory.json cannot be read ({err}); it is truncated or corrupted") from None
     if not isinstance(manifest, dict) or manifest.get("format") != FORMAT:
         raise _fail(folder, f"memory.json is not a {FORMAT} manifest")
     if manifest.get("version") != VERSION:
@@ -167,13 +174,14 @@ def read_memory(path: str | Path) -> SavedMemory:
     files = manifest.get("files")
     if not isinstance(files, dict) or set(files) != {"map.bin", *_ARRAY_FILES}:
         raise _fail(folder, "memory.json does not list the memory's files; it is corrupted")
+    _check_manifest(folder, manifest)
     data: dict[str, bytes] = {}
     for name, expected in files.items():
         path_ = folder / name
         try:
             blob = read_bytes(path_, f"memory file {name}", _MAX_FILE_BYTES)
         except OSError as err:
-            raise _fail(folder, f"{name} cannot be read ({err})") from err
+            raise _fail(folder, f"{name} cannot be read ({os_error_words(err)})") from None
         if len(blob) != expected.get("bytes"):
             raise _fail(
                 folder,
@@ -190,12 +198,45 @@ def read_memory(path: str | Path) -> SavedMemory:
         try:
             with np.load(io.BytesIO(data[name]), allow_pickle=False) as npz:
                 arrays[name] = {k: npz[k] for k in npz.files}
-        except (ValueError, OSError, EOFError) as err:
-            raise _fail(folder, f"{name} is not a readable array file ({err})") from err
+        except (ValueError, OSError, EOFError) as err:  # numpy's words for bytes that are not an .npz
+            why = err.args[0] if err.args else type(err).__name__
+            raise _fail(folder, f"{name} is not a readable array file ({why})") from None
     info = {k: v for k, v in manifest.items() if k not in ("format", "version", "files")}
     return SavedMemory(
         data["map.bin"], arrays["views.npz"], arrays["keyframes.npz"], arrays["state.npz"], info, folder
     )
+
+
+_SHA256_HEX = frozenset("0123456789abcdef")
+_INFO_OBJECTS = ("depends_on", "config", "counts", "odometry")
+
+
+def _check_manifest(folder: Path, manifest: dict[str, Any]) -> None:
+    """Every field of memory.json a later step reads has the type it needs, so a hand-edited or foreign
+    manifest is one error naming the field, not a traceback where it is used."""
+    for name, entry in manifest["files"].items():
+        if not (
+            isinstance(entry, dict)
+            and type(entry.get("bytes")) is int
+            and entry["bytes"] >= 0
+            and isinstance(entry.get("sha256"), str)
+            and len(entry["sha256"]) == 64
+            and set(entry["sha256"]) <= _SHA256_HEX
+        ):
+            raise _fail(
+                folder,
+                f"memory.json's files.{name} is not a size and a SHA-256 ({json.dumps(entry)[:80]}); the "
+                "manifest is corrupted: restore the folder from a backup",
+            )
+    for key in _INFO_OBJECTS:
+        if key in manifest and not isinstance(manifest[key], dict):
+            raise _fail(
+                folder,
+                f"memory.json's {key} is {type(manifest[key]).__name__}, not an object; it is corrupted",
+            )
+    for key, value in (manifest.get("counts") or {}).items():
+        if type(value) is not int or value < 0:
+            raise _fail(folder, f"memory.json's counts.{key} is {value!r}, not a count; it is corrupted")
 
 
 # Settings a memory records only since a later version, with the value every memory saved before had.
@@ -222,7 +263,19 @@ def check_compatible(memory: SavedMemory, now: dict[str, Any]) -> None:
     for name in _NO_LONGER_RECORDED:
         saved.pop(name, None)
     current = dotted(now)
-    for name in sorted(set(saved) | set(current)):
+    differ = [
+        n
+        for n in sorted(set(saved) | set(current))
+        if not _same(saved.get(n, "<absent>"), current.get(n, "<absent>"))
+    ]
+    if any(name.startswith("camera.") for name in differ):
+        raise _fail(
+            memory.folder or Path("."),
+            f"it was made with another camera ({_camera(saved)}; this run's: {_camera(current)}): its view "
+            "cells and keyframes are images of that camera. Run on the images of the camera that made it, "
+            "or start a new map.",
+        )
+    for name in differ:
         a, b = saved.get(name, "<absent>"), current.get(name, "<absent>")
         if not _same(a, b):
             raise _fail(
@@ -230,4 +283,56 @@ def check_compatible(memory: SavedMemory, now: dict[str, Any]) -> None:
                 f"it was made with {name} = {json.dumps(a)}, this run has {json.dumps(b)}: what it stores "
                 "(view cells, network states, map) depends on that setting. Run with the saved value (its "
                 "config.json is in the results folder) or start a new map.",
+            )
+
+
+def _camera(flat: dict[str, Any]) -> str:
+    """A camera as a person compares two: image size, focal length, baseline."""
+    size = flat.get("camera.image_size_px")
+    fx, baseline = flat.get("camera.fx_px"), flat.get("camera.baseline_m")
+    parts = [
+        f"{size[0]}×{size[1]} px images" if isinstance(size, list) and len(size) == 2 else f"images {size!r}",
+        f"fx {fx:.2f} px" if isinstance(fx, (int, float)) else f"fx {fx!r}",
+        f"baseline {baseline:.4f} m" if isinstance(baseline, (int, float)) else f"baseline {baseline!r}",
+    ]
+    return ", ".join(parts)
+
+
+def check_parts_agree(memory: SavedMemory, *, vertices: int, view_cells: int) -> None:
+    """The restored parts of `memory` refer to each other only within what was restored (`vertices` map
+    vertices, `view_cells` cells): view cells anchored to vertices the map has, keyframes of its vertices,
+    the counts the manifest promises. A memory that fails this (files mixed from several runs) would load and
+    never relocalise, so it is refused, naming what disagrees."""
+    folder = memory.folder or Path(".")
+    views, keyframes = memory.views, memory.keyframes
+    checks = [
+        ("views.npz recall.anchor_vertex", views.get("recall.anchor_vertex"), vertices, "map vertices"),
+        ("keyframes.npz vertex", keyframes.get("vertex"), vertices, "map vertices"),
+        ("views.npz recall.anchor_cell", views.get("recall.anchor_cell"), view_cells, "view cells"),
+        ("views.npz recall.stored_cell", views.get("recall.stored_cell"), view_cells, "view cells"),
+        ("views.npz recall.offset_cell", views.get("recall.offset_cell"), view_cells, "view cells"),
+    ]
+    for what, ids, size, of in checks:
+        if ids is None or np.size(ids) == 0:
+            continue
+        ids = np.asarray(ids).reshape(-1)
+        if not np.issubdtype(ids.dtype, np.integer):
+            found = f"holds {ids.dtype} values, not ids"
+        elif ids.min() < 0 or ids.max() >= size:
+            found = f"refers to ids {int(ids.min())} to {int(ids.max())}, the memory holds {size} {of}"
+        else:
+            continue
+        raise _fail(
+            folder,
+            f"its parts disagree: {what} {found}; it is not one run's memory (files mixed from several?): "
+            "start a new map or restore the folder",
+        )
+    counts = memory.info.get("counts") or {}
+    for name, restored in (("vertices", vertices), ("view_cells", view_cells)):
+        promised = counts.get(name)
+        if promised is not None and promised != restored:
+            raise _fail(
+                folder,
+                f"memory.json promises {promised} {name}, its files hold {restored}; the files are mixed "
+                "from several runs: restore the folder",
             )

@@ -57,7 +57,8 @@ import numpy as np
 
 from hippo_nav._core import HippoNavError
 from hippo_nav.io import write_kitti_poses, write_tum
-from hippo_nav.io.atomic import WriteError, open_atomic, write_text
+from hippo_nav.io.atomic import WriteError, open_atomic, open_lock, write_text
+from hippo_nav.io.errors import os_error_words
 from hippo_nav.map import ExperienceMap
 from hippo_nav.memory import MEMORY_FOLDER, SavedMemory, write_memory
 from hippo_nav.metrics import KITTI_SEGMENT_LENGTHS_M, ate_rmse, relative_errors_kitti, trajectory_distances_m
@@ -80,20 +81,28 @@ RESULT_PATTERNS = (
 )
 """What a run writes into its results folder (and what `--overwrite` clears, nothing else)."""
 RESULTS_MARK = ".hippo_nav_results"
-"""Written into a results folder before the first frame: `--overwrite` clears only a folder that has it, so
-a folder that was never a results folder (a user's own config.json, frames.csv) is never cleared."""
+"""Written into a results folder before the first frame: `--overwrite` replaces only a folder that has it, so
+a folder that was never a results folder (a user's own config.json, frames.csv) is never touched."""
+PREVIOUS_RESULTS = ".hippo_nav_previous"
+"""With `--overwrite`, the earlier run's files are moved here before the first frame (`PreviousResults`), not
+deleted: the map a run reads (`--map X --out X`) and the earlier results survive until the new ones are
+written whole, and come back when the new run writes nothing."""
 
 CLOSURE_TRUE_M = 5.0
 CLOSURE_COVER_M = 10.0
 TIMING_WINDOW_FRAMES = 100
 
 
-def prepare_results_folder(out: str | Path, overwrite: bool = False) -> tuple[Path, IO[str]]:
+def prepare_results_folder(
+    out: str | Path, overwrite: bool = False
+) -> tuple[Path, IO[str], PreviousResults | None]:
     """Check (and create) the results folder before the first frame, so a run never finishes its frames
-    only to find it cannot write them; returns it and its lock (keep the file open for the whole run).
+    only to find it cannot write them; returns it, its lock (keep the file open for the whole run) and,
+    with `overwrite`, the earlier run's files set aside (`PreviousResults`: discard them once the new
+    results are written, restore them when nothing was).
 
-    A folder holding files is refused unless `overwrite`, which removes the files an earlier run wrote there
-    (`RESULT_FILES`, `RESULT_PATTERNS`) and nothing else, and only in a folder a run prepared
+    A folder holding files is refused unless `overwrite`, which sets aside the files an earlier run wrote
+    there (`RESULT_FILES`, `RESULT_PATTERNS`) and nothing else, and only in a folder a run prepared
     (`RESULTS_MARK`). The mark is also the run's lock (`flock`, exclusive): a second run into the same
     folder is refused while the first one is writing, before it touches anything."""
     if str(out).strip() == "":
@@ -132,7 +141,10 @@ def prepare_results_folder(out: str | Path, overwrite: bool = False) -> tuple[Pa
         )
     if mark.is_symlink():
         raise HippoNavError(f"{mark} is a symbolic link; a results folder's mark must be a plain file")
-    lock = open(mark, "a+", encoding="utf-8")  # noqa: SIM115 (held open for the whole run)
+    try:
+        lock = open_lock(mark)  # held open (and locked) for the whole run
+    except WriteError as err:
+        raise HippoNavError(str(err)) from None
     try:
         fcntl.flock(lock.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
@@ -140,17 +152,105 @@ def prepare_results_folder(out: str | Path, overwrite: bool = False) -> tuple[Pa
         raise HippoNavError(
             f"another run is writing into {path} (it holds {RESULTS_MARK}); wait for it or choose another --out"
         ) from None
-    if overwrite:
-        for name in RESULT_FILES:
-            (path / name).unlink(missing_ok=True)
-        for pattern in RESULT_PATTERNS:
-            for old in path.glob(pattern):
-                old.unlink(missing_ok=True)
-    lock.seek(0)
-    lock.truncate()
-    lock.write(json.dumps({"hippo_nav_results": 1, "pid": os.getpid()}) + "\n")
-    lock.flush()
-    return path, lock
+    previous = None
+    try:
+        if overwrite:
+            previous = PreviousResults.set_aside(path)
+        lock.seek(0)
+        lock.truncate()
+        lock.write(json.dumps({"hippo_nav_results": 1, "pid": os.getpid()}) + "\n")
+        lock.flush()
+    except BaseException:
+        if previous is not None:
+            previous.restore()
+        lock.close()
+        raise
+    return path, lock, previous
+
+
+def _result_entries(folder: Path) -> list[Path]:
+    """The files (and the memory folder) an earlier run wrote into `folder`: `RESULT_FILES`' top-level names
+    and `RESULT_PATTERNS`' matches, links included (as links)."""
+    names = {name.split("/")[0] for name in RESULT_FILES}
+    entries = [folder / name for name in sorted(names)]
+    entries += [p for pattern in RESULT_PATTERNS for p in sorted(folder.glob(pattern))]
+    return [p for p in dict.fromkeys(entries) if p.is_symlink() or p.exists()]
+
+
+def _remove(path: Path) -> None:
+    """Remove a file, a link (never what it points to) or a folder a run wrote."""
+    if path.is_symlink() or not path.is_dir():
+        path.unlink(missing_ok=True)
+    else:
+        shutil.rmtree(path)
+
+
+class PreviousResults:
+    """An earlier run's files in a results folder, set aside by `--overwrite` (`PREVIOUS_RESULTS`).
+
+    `set_aside` moves them (renames: nothing is copied or deleted, a link moves as a link) before the first
+    frame; `discard` removes them once the new results are written whole; `restore` puts them back when the
+    new run wrote nothing (stopped before its first frame, or every file went to a rescue folder). A run
+    killed outright leaves them set aside: the next `--overwrite` keeps that complete earlier run and drops
+    the killed run's part-written files instead."""
+
+    def __init__(self, folder: Path) -> None:
+        self.folder = folder
+        self.aside = folder / PREVIOUS_RESULTS
+
+    @classmethod
+    def set_aside(cls, folder: Path) -> PreviousResults:
+        previous = cls(folder)
+        aside = previous.aside
+        try:
+            if aside.is_symlink() or (aside.exists() and not aside.is_dir()):
+                raise HippoNavError(
+                    f"{aside} is not a folder a run made (a link or a file); remove it, then run again"
+                )
+            if aside.is_dir():
+                # A run was killed while writing here: the complete run before it is in `aside`; what it
+                # left in the folder itself is part-written.
+                log.warning(
+                    "%s holds an earlier run set aside by a run that never finished; keeping it and "
+                    "removing the unfinished run's files",
+                    aside,
+                )
+                for entry in _result_entries(folder):
+                    _remove(entry)
+                return previous
+            entries = _result_entries(folder)
+            if entries:
+                aside.mkdir()
+                for entry in entries:
+                    os.rename(entry, aside / entry.name)
+        except OSError as err:
+            raise HippoNavError(
+                f"cannot set the earlier results in {folder} aside for --overwrite: {os_error_words(err)}; nothing "
+                "was removed"
+            ) from None
+        return previous
+
+    def discard(self) -> None:
+        """The new results are written whole: the earlier ones go."""
+        if self.aside.is_dir() and not self.aside.is_symlink():
+            shutil.rmtree(self.aside, ignore_errors=True)
+
+    def restore(self) -> None:
+        """The new run wrote nothing usable here: the earlier run's files back in place (replacing any
+        part-written file of the new one)."""
+        if not self.aside.is_dir() or self.aside.is_symlink():
+            return
+        try:
+            for entry in sorted(self.aside.iterdir()):
+                target = self.folder / entry.name
+                if target.is_symlink() or target.exists():
+                    _remove(target)
+                os.rename(entry, target)
+            self.aside.rmdir()
+        except OSError as err:
+            log.error(
+                "the earlier results could not all be put back from %s: %s", self.aside, os_error_words(err)
+            )
 
 
 def _segment_lengths(gt: np.ndarray) -> tuple[float, ...]:
@@ -261,8 +361,10 @@ def timing(record: RunRecord) -> dict[str, Any]:
     frame_total = sum(per_stage.values())
     window = min(TIMING_WINDOW_FRAMES, n)
 
-    def ms(which: slice) -> dict[str, float]:
-        return {s: 1e3 * float(np.mean(record.stage_s[s][which])) for s in STAGES} if n else {}
+    def ms(which: slice) -> dict[str, float | None]:
+        # A frame stopped part-way (a signal in the middle of its stages) has no time for the stages after.
+        window_s = {s: record.stage_s[s][which] for s in STAGES}
+        return {s: 1e3 * float(np.mean(t)) if len(t) else None for s, t in window_s.items()} if n else {}
 
     return {
         "frames": n,
@@ -496,19 +598,21 @@ def write_results(
     experience_map: ExperienceMap | None = None,
     shield: Callable[[], AbstractContextManager[Any]] = contextlib.nullcontext,
     memory: SavedMemory | None = None,
+    interruptible: Callable[[], AbstractContextManager[Any]] = contextlib.nullcontext,
 ) -> None:
     """Write the results folder of a run (module doc); `result.out_dir` is set. `frontend`: the resolved
     front-end parameters for config.json; `experience_map`: the map to save (map.bin, map.g2o); `memory`:
     what a later run needs to start inside this one's map (`memory/`, docs/memory.md); `shield`:
     a context in which signals wait (the runner's), entered for everything but the figures, which an
-    interrupt only cuts short (the figures drawn by then are listed in metrics.json).
+    interrupt only cuts short (the figures drawn by then are listed in metrics.json); `interruptible`: the
+    runner's context in which a signal may cut a step short, entered for the figures.
 
     Every file is written atomically (`hippo_nav.io.atomic`): none is ever left truncated. When the folder
     stops taking files (read-only, full, removed), the whole results are written to a fresh folder
     elsewhere (`rescue_folder_candidates`) and `ResultsNotWrittenError` names the file that failed and
     that folder, so no finished run is lost."""
     try:
-        _write_results(result, out, config, frontend, experience_map, shield, memory)
+        _write_results(result, out, config, frontend, experience_map, shield, memory, interruptible)
     except WriteError as failure:
         log.error("%s", failure)
         rescue_error = "no folder to write to"
@@ -516,9 +620,16 @@ def write_results(
             rescue = None
             try:
                 rescue = Path(tempfile.mkdtemp(prefix="hippo_nav_results_", dir=parent))
-                _write_results(result, rescue, config, frontend, experience_map, shield, memory)
-            except (OSError, WriteError) as err:
+                _write_results(
+                    result, rescue, config, frontend, experience_map, shield, memory, interruptible
+                )
+            except WriteError as err:
                 rescue_error = str(err)
+                if rescue is not None:
+                    shutil.rmtree(rescue, ignore_errors=True)
+                continue
+            except OSError as err:
+                rescue_error = os_error_words(err)
                 if rescue is not None:
                     shutil.rmtree(rescue, ignore_errors=True)
                 continue
@@ -534,6 +645,7 @@ def _write_results(
     experience_map: ExperienceMap | None,
     shield: Callable[[], AbstractContextManager[Any]],
     memory: SavedMemory | None,
+    interruptible: Callable[[], AbstractContextManager[Any]],
 ) -> None:
     with shield():
         _write_data(result, out, config, frontend, experience_map, memory)
@@ -544,9 +656,10 @@ def _write_results(
         clock = time.perf_counter()
         written: list[Path] = []
         try:
-            write_run_figures(
-                result, out, config.output.rate_map_bin_m, config.engine.torus_period_m, written=written
-            )
+            with interruptible():
+                write_run_figures(
+                    result, out, config.output.rate_map_bin_m, config.engine.torus_period_m, written=written
+                )
         except KeyboardInterrupt:
             log.warning("figures interrupted after %d; the other results are written", len(written))
             metrics.setdefault("unavailable", {})["figures"] = "interrupted"
@@ -575,7 +688,7 @@ def _write_data(
     except FileExistsError:
         raise WriteError(out, "it is not a folder any more") from None
     except OSError as err:
-        raise WriteError(out, err.strerror or str(err)) from None
+        raise WriteError(out, os_error_words(err)) from None
     clock = time.perf_counter()
     resolved = resolved_config_dict(config)
     resolved.update(frontend or {})

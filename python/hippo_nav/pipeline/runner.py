@@ -99,6 +99,7 @@ class Pipeline:
             else parts.make_odometry(_with_saved_rig(self.config, memory), dataset.calibration)
         )
         self.observers = list(observers)
+        self._written = False  # this run's results folder is written whole (`run`, `_finish`)
         n = len(dataset)
         wanted = self.config.output.state_frames
         outside = [p for p in (wanted or []) if not 0 <= p < n]
@@ -131,9 +132,17 @@ class Pipeline:
             return self._run(None)
         from hippo_nav.pipeline.results import prepare_results_folder
 
-        out_dir, lock = prepare_results_folder(out_dir, overwrite)
+        out_dir, lock, previous = prepare_results_folder(out_dir, overwrite)
         with lock:  # held until everything is written: a second run into this folder is refused meanwhile
-            return self._run(out_dir)
+            try:
+                return self._run(out_dir)
+            finally:
+                # The earlier run's files (`--overwrite`) go only once this run's are written whole; else
+                # (stopped before its first frame, results rescued elsewhere) they come back.
+                if previous is not None and self._written:
+                    previous.discard()
+                elif previous is not None:
+                    previous.restore()
 
     def _run(self, out_dir: Path | None) -> RunResult:
         for warning in self.extras.warnings:
@@ -162,6 +171,7 @@ class Pipeline:
                             vertices=len(self.system.map), views=len(self.system.view_recall), loops=loops,
                             refresh=False,
                         )  # fmt: skip
+                signals.frames_done()
             except KeyboardInterrupt:
                 if len(record) == 0:
                     raise
@@ -182,8 +192,9 @@ class Pipeline:
             self._recorder.final_snapshot(self.system.engine)
         result = self._finish(out_dir, interrupted, None if stopped_by is None else str(stopped_by), signals)
         try:
-            for observer in self.observers:
-                observer.on_finish(result)
+            with signals.interruptible():  # a viewer's flush may wait on another program: a signal cuts it
+                for observer in self.observers:
+                    observer.on_finish(result)
         except KeyboardInterrupt:  # the results are written; only a viewer's last frame is lost
             log.warning("the viewers' last frame interrupted; the results are written")
             result.metrics["interrupted_by"] = (
@@ -271,7 +282,8 @@ class Pipeline:
 
         clock = time.perf_counter()
         try:
-            correction = self.system.correct()
+            with signals.interruptible():
+                correction = self.system.correct()
         except KeyboardInterrupt:
             correction = {
                 "method": self.config.correction.method,
@@ -307,18 +319,7 @@ class Pipeline:
                 result.metrics["interrupted_by"] = signals.caught
         if out_dir is not None:
             frontend = resolved_frontend_params(self.odometry, self.system.view_cells)
-            memory = None
-            if self.config.output.save_map:
-                try:
-                    memory = self.system.save_memory()
-                except HippoNavError as err:  # a custom part that cannot be saved: the rest is still written
-                    log.warning("no memory/ written: %s", err)
-                    result.metrics.setdefault("unavailable", {})["memory"] = str(err)
-                offset_px = OdometryExtras.of(self.odometry).disparity_offset_px
-                if memory is not None and offset_px is not None:
-                    # The rig's stereo correction as this run ended (found by the VO's self-calibration):
-                    # a later session with the same cameras starts from it (`_with_saved_rig`).
-                    memory.info["odometry"] = {"disparity_offset_px": offset_px}
+            memory = self._memory_to_save(result) if self.config.output.save_map else None
             try:
                 write_results(
                     result,
@@ -327,15 +328,32 @@ class Pipeline:
                     frontend,
                     self.system.map,
                     shield=signals.shielded,
+                    interruptible=signals.interruptible,
                     memory=memory,
                 )
             except ResultsNotWrittenError as err:
                 err.result = result  # type: ignore[attr-defined]
                 raise
+            self._written = True
         if signals.caught is not None and not result.interrupted:
             # Every frame was processed, but a signal came during the correction or the writing.
             result.metrics["interrupted_by"] = signals.caught
         return result
+
+    def _memory_to_save(self, result: RunResult) -> SavedMemory | None:
+        """What `memory/` will hold, or None (said in `metrics.json`) when a part cannot be saved."""
+        try:
+            memory = self.system.save_memory()
+        except HippoNavError as err:  # a custom part that cannot be saved: the rest is still written
+            log.warning("no memory/ written: %s", err)
+            result.metrics.setdefault("unavailable", {})["memory"] = str(err)
+            return None
+        offset_px = OdometryExtras.of(self.odometry).disparity_offset_px
+        if offset_px is not None:
+            # The rig's stereo correction as this run ended (found by the VO's self-calibration): a later
+            # session with the same cameras starts from it (`_with_saved_rig`).
+            memory.info["odometry"] = {"disparity_offset_px": offset_px}
+        return memory
 
     @contextlib.contextmanager
     def _progress_bar(self) -> Iterator[Any]:
@@ -357,28 +375,46 @@ class Pipeline:
 class _Signals:
     """How the run answers Ctrl-C (SIGINT), SIGTERM and SIGHUP (what schedulers and `docker stop` send).
 
-    While frames are processed, the final correction runs (a native call that checks for signals) or
-    figures are drawn, a signal raises `KeyboardInterrupt` there: the frame loop stops after the current
-    frame, the correction stops at its last accepted step, the figures stop. While the results are written
-    (`shielded`), a signal only waits: the files are finished whole, and the run then says it was
-    interrupted. `caught` names the first signal. Only the main thread can install handlers; elsewhere
-    the default behaviour stays. A signal the process was started ignoring stays ignored: `nohup`
-    (SIGHUP) and a scheduler's `trap '' TERM` mean "do not stop on this"."""
+    The first signal during the frames raises `KeyboardInterrupt` there: the frame loop stops after the
+    current frame. From then on (and once the last frame is done) the run is finishing, and a signal only
+    waits — the map's correction and the results files are never lost to a second Ctrl-C — except in the
+    `interruptible` steps that a signal cuts short without losing anything: the final correction (stopped at
+    its last accepted step), the figures and the viewers' last frame. While files are written (`shielded`) a
+    signal always waits, so every file is whole; the run then says it was interrupted. `caught` names the
+    first signal. Only the main thread can install handlers; elsewhere the default behaviour stays. A signal
+    the process was started ignoring stays ignored: `nohup` (SIGHUP) and a scheduler's `trap '' TERM` mean
+    "do not stop on this"."""
 
     def __init__(self) -> None:
         self.caught: str | None = None
         self._shielded = 0
+        self._interruptible = 0
+        self._finishing = False
         self._told = False
 
     def handle(self, signum: int, _frame: object) -> None:
         name = signal.Signals(signum).name
         self.caught = self.caught or name
-        if self._shielded:
+        if self._shielded or (self._finishing and not self._interruptible):
             if not self._told:
                 self._told = True
                 log.warning("%s: finishing the results files first (they are written whole)", name)
             return
+        self._finishing = True
         raise KeyboardInterrupt
+
+    def frames_done(self) -> None:
+        """Every frame is processed: from now on only `interruptible` steps stop on a signal."""
+        self._finishing = True
+
+    @contextlib.contextmanager
+    def interruptible(self) -> Iterator[None]:
+        """A step that a signal may cut short even while the run is finishing (class doc)."""
+        self._interruptible += 1
+        try:
+            yield
+        finally:
+            self._interruptible -= 1
 
     @contextlib.contextmanager
     def shielded(self) -> Iterator[None]:

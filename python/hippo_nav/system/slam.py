@@ -39,8 +39,10 @@ so a run is deterministic for a given config and input.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -52,7 +54,7 @@ from hippo_nav.datasets.base import StereoCalibration, StereoFrame
 from hippo_nav.engine import SpatialMemory, SpatialReadout
 from hippo_nav.geometry import planar_from_pose, se2_between, se2_compose
 from hippo_nav.map import ClosureMode, ExperienceMap, MapFrameOutcome, new_experience_map
-from hippo_nav.memory import SavedMemory, check_compatible
+from hippo_nav.memory import SavedMemory, SavedMemoryError, check_compatible, check_parts_agree
 from hippo_nav.plugs import Persistent
 from hippo_nav.system import parts
 from hippo_nav.system.config import PipelineConfig
@@ -384,8 +386,14 @@ class SlamSystem:
         return SavedMemory(bytes(self.map.to_bytes()), views, keyframes, state, info)
 
     def _load(self, memory: SavedMemory, resume: bool) -> None:
-        """Take a saved memory (class doc): checked for compatibility, then every part restored."""
+        """Take a saved memory (class doc): checked for compatibility, every part restored (any failure one
+        `SavedMemoryError`), then its parts checked to agree with each other (`check_parts_agree`)."""
         check_compatible(memory, self.depends_on())
+        with _errors_said_of(memory):
+            self._restore(memory, resume)
+        check_parts_agree(memory, vertices=len(self.map), view_cells=len(self.view_cells))
+
+    def _restore(self, memory: SavedMemory, resume: bool) -> None:
         if self.config.map.closure != ClosureMode.GEOMETRIC and not resume:
             raise HippoNavError(
                 'starting inside a saved map needs the geometric closure (map.closure = "Geometric"): '
@@ -498,6 +506,23 @@ def _engine_arrays(engine: SpatialMemory) -> dict[str, np.ndarray]:
         "engine.aux": np.array(state["aux"]),
         **{f"engine.grid{i}": g for i, g in enumerate(state["grid"])},
     }
+
+
+@contextlib.contextmanager
+def _errors_said_of(memory: SavedMemory) -> Iterator[None]:
+    """A part's own error while restoring (e.g. the networks' sizes), or an array that is missing or of
+    another shape or type: one `SavedMemoryError` naming the memory's folder."""
+    try:
+        yield
+    except HippoNavError as err:
+        if isinstance(err, SavedMemoryError) and str(memory.folder) in str(err):
+            raise
+        raise SavedMemoryError(f"the saved memory in {memory.folder}: {err}") from None
+    except (KeyError, ValueError, TypeError, IndexError, OverflowError) as err:
+        raise SavedMemoryError(
+            f"the saved memory in {memory.folder}: its arrays cannot be restored ({type(err).__name__}: "
+            f"{err}); it was not written by this hippo_nav or was changed after the run: start a new map"
+        ) from None
 
 
 def _restore_engine(engine: SpatialMemory, saved: dict[str, np.ndarray]) -> None:

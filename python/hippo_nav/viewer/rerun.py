@@ -34,6 +34,7 @@ import os
 import socket
 import sys
 import tempfile
+import threading
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -295,9 +296,27 @@ class RerunObserver:
         self.rec.set_time("time", duration=float(record.timestamp_s))
 
     def close(self) -> None:
-        """Flush and close the recording (the .rrd file is complete after this)."""
+        """Flush and close the recording (the .rrd file is complete after this), waiting at most
+        `FLUSH_TIMEOUT_S` for each: a program on the viewer's port that takes the connection but is not a
+        viewer (or a viewer that hangs) would otherwise hold the finished run for ever, in the close and
+        again in Rerun's own shutdown when the process exits."""
         self._flush()
-        self.rec.disconnect()
+        closing = threading.Thread(target=self.rec.disconnect, name="rerun-disconnect", daemon=True)
+        closing.start()
+        closing.join(FLUSH_TIMEOUT_S)
+        if closing.is_alive():
+            import logging
+
+            logging.getLogger("hippo_nav.viewer").warning(
+                "the Rerun viewer did not close the connection within %.0f s (is another program listening "
+                "on port %d?); not waiting for it: the run's results are written",
+                FLUSH_TIMEOUT_S, VIEWER_PORT,
+            )  # fmt: skip
+            # Rerun's exit handler would wait for that connection too, and the process would never end.
+            unregister = getattr(self.rr, "unregister_shutdown", None)
+            if unregister is not None:
+                unregister()
+            return
         if self._partial is not None and self._save_to is not None:
             os.replace(self._partial, self._save_to)
             self._partial = None

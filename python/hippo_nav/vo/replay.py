@@ -53,7 +53,7 @@ import numpy as np
 from hippo_nav.datasets.base import StereoDataset
 from hippo_nav.datasets.kitti import read_times
 from hippo_nav.io import DatasetError, read_kitti_poses, read_text, read_tum
-from hippo_nav.io.errors import file_error
+from hippo_nav.io.errors import file_error, os_error_words
 from hippo_nav.vo.odometry import VoStep
 
 FORMATS = ("kitti", "tum")
@@ -85,8 +85,8 @@ def guess_pose_format(path: str | Path) -> str:
         raise DatasetError(f"{path}: pose file not found (check the path)")
     try:
         lines = read_text(path, "pose file").splitlines()
-    except (OSError, UnicodeDecodeError) as err:
-        raise file_error(path, f"cannot be read as text: {err}") from None
+    except OSError as err:
+        raise file_error(path, f"cannot be read ({os_error_words(err)})") from None
     for number, text in enumerate(lines, start=1):
         stripped = text.strip()
         if not stripped or stripped.startswith("#"):
