@@ -18,7 +18,7 @@ import json
 import types
 from collections.abc import Callable
 from functools import cache
-from typing import Any, Union, get_args, get_origin
+from typing import Annotated, Any, Union, get_args, get_origin
 
 from pydantic import BaseModel, ConfigDict, ValidationInfo, field_validator
 
@@ -85,6 +85,8 @@ def _wrong_kind(annotation: Any, value: Any) -> str | None:
     if value is None:
         return None
     origin = get_origin(annotation)
+    if origin is Annotated:  # constraints (`Annotated[int, Field(ge=0)]`) do not change the kind
+        return _wrong_kind(get_args(annotation)[0], value)
     if origin in (Union, types.UnionType):
         reasons = [_wrong_kind(a, value) for a in get_args(annotation) if a is not type(None)]
         return None if not reasons or None in reasons else reasons[0]

@@ -13,12 +13,13 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, ClassVar, Generic, Protocol, TypeVar, runtime_checkable
+from typing import TYPE_CHECKING, ClassVar, Generic, Protocol, TypeVar, get_args, runtime_checkable
 
 import numpy as np
 from pydantic import ConfigDict, ModelWrapValidatorHandler, ValidationError, model_validator
-from pydantic_core import InitErrorDetails
+from pydantic_core import InitErrorDetails, PydanticCustomError
 from pydantic_core import ValidationError as CoreValidationError
+from pydantic_core.core_schema import ErrorType
 
 from hippo_nav._defaults import ConfigSection
 
@@ -119,12 +120,25 @@ class PartSections(ConfigSection):
         return value
 
 
+_CORE_ERROR_TYPES = frozenset(get_args(ErrorType))
+"""The error types pydantic-core can raise again by name; pydantic's own (`path_type` of a `Path` field, …)
+are not among them."""
+
+
 def _details(err: ValidationError, *prefix: str) -> list[InitErrorDetails]:
-    """The errors of `err`, located under `prefix`, as they can be raised again."""
+    """The errors of `err`, located under `prefix`, as they can be raised again. An error type pydantic-core
+    does not know by name (Hypothesis found `path_type`: `view_words.vocabulary = []`, which raised a
+    KeyError) is raised again as a custom error with the same type and message."""
     details = []
     for e in err.errors():
-        detail = InitErrorDetails(type=e["type"], loc=(*prefix, *e["loc"]), input=e["input"])
-        if "ctx" in e:
-            detail["ctx"] = e["ctx"]
+        if e["type"] in _CORE_ERROR_TYPES:
+            detail = InitErrorDetails(type=e["type"], loc=(*prefix, *e["loc"]), input=e["input"])
+            if "ctx" in e:
+                detail["ctx"] = e["ctx"]
+        else:
+            # Without a context the rendered message is kept as it is (braces are not placeholders then).
+            detail = InitErrorDetails(
+                type=PydanticCustomError(e["type"], e["msg"]), loc=(*prefix, *e["loc"]), input=e["input"]
+            )
         details.append(detail)
     return details

@@ -4,6 +4,7 @@ loader options they take (declared by the loaders, `StereoLoader.FLAGS`), and th
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -13,8 +14,63 @@ if TYPE_CHECKING:
 MAX_SEED = 2**31 - 1
 """Seeds reach OpenCV's RNG, which takes a 32-bit signed integer."""
 
+MAX_FRAME = 10**9
+"""Frame numbers, strides and counts of frames at most: a billion (KITTI's longest sequence has 4 661 frames).
+More is a typo of extra digits, and the frame arithmetic stays far inside int64."""
+MAX_THREADS = 4096
+"""Threads, processes or CPUs of one option at most (more than any machine has)."""
+MAX_RETRIES = 100
+"""Restarts of a sweep's run whose worker died, at most (a run that dies 100 times will not finish)."""
+
 SIGNAL_EXIT = {"SIGINT": 130, "SIGHUP": 129, "SIGTERM": 143}
 """The exit code of a run stopped by a signal: 128 + the signal number."""
+
+
+def _shown(text: str, limit: int = 40) -> str:
+    """`text` as it is quoted in a message: cut to `limit` characters (a pasted megabyte stays one line)."""
+    return repr(text) if len(text) <= limit else repr(text[:limit]) + f"… ({len(text)} characters)"
+
+
+def bounded_int(lo: int, hi: int) -> Callable[[str], int]:
+    """An argparse `type=` for an integer option from `lo` to `hi`: anything else (text, a fraction, a value
+    out of range, 10**30 digits) is argparse's one-line error naming the option and the range, exit 2, before
+    the value reaches NumPy or Rust (where it would overflow or allocate without end)."""
+
+    def parse(text: str) -> int:
+        try:
+            value = int(text)
+        except ValueError:  # also a number of more than 4 300 digits (Python's limit for int("…"))
+            raise argparse.ArgumentTypeError(
+                f"{_shown(text)} is not an integer; give one from {lo} to {hi}"
+            ) from None
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(
+                f"{_shown(text)} is out of range; give an integer from {lo} to {hi}"
+            )
+        return value
+
+    parse.__name__ = f"integer from {lo} to {hi}"
+    return parse
+
+
+def image_size(lo: int, hi: int) -> Callable[[str], str]:
+    """An argparse `type=` for `WIDTHxHEIGHT` pixels, each side from `lo` to `hi`; returns the text as given
+    (the command splits it), so a bad size is argparse's one line, exit 2, before anything is rendered."""
+
+    def parse(text: str) -> str:
+        sides = text.lower().split("x")
+        try:
+            width, height = (int(side) for side in sides)
+        except ValueError:  # not two integers (or one of more than 4 300 digits)
+            raise argparse.ArgumentTypeError(
+                f"{_shown(text)}: give WIDTHxHEIGHT in pixels, e.g. 320x96"
+            ) from None
+        if not (lo <= width <= hi and lo <= height <= hi):
+            raise argparse.ArgumentTypeError(f"{_shown(text)}: each side must be {lo} to {hi} px")
+        return text
+
+    parse.__name__ = "WIDTHxHEIGHT"
+    return parse
 
 
 class HelpFormatter(argparse.RawDescriptionHelpFormatter, argparse.ArgumentDefaultsHelpFormatter):
@@ -108,12 +164,23 @@ def add_input_flags(
             help="the sequence inside --dataset: a sequence number (KITTI) or a sequence folder (EuRoC, stereo "
             f"folder) (default: {numbered}; else the path itself)",
         )
-    target.add_argument("--start", type=int, default=None, help="first frame (default: the sequence's first)")
     target.add_argument(
-        "--stop", type=int, default=None, help="frame to stop before (default: run to the end)"
+        "--start",
+        type=bounded_int(0, MAX_FRAME - 1),
+        default=None,
+        help="first frame (default: the sequence's first)",
     )
     target.add_argument(
-        "--stride", type=int, default=stride_default, help="use every n-th frame (default: 1)"
+        "--stop",
+        type=bounded_int(1, MAX_FRAME),
+        default=None,
+        help="frame to stop before (default: run to the end)",
+    )
+    target.add_argument(
+        "--stride",
+        type=bounded_int(1, MAX_FRAME),
+        default=stride_default,
+        help="use every n-th frame (default: 1)",
     )
     options = target if loader_group is None else loader_group
     for key, flag in loader_flags().items():

@@ -8,7 +8,15 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from hippo_nav.cli.common import MAX_SEED, SIGNAL_EXIT, add_input_flags, add_replay_flags, dataset_input
+from hippo_nav.cli.common import (
+    MAX_FRAME,
+    MAX_SEED,
+    SIGNAL_EXIT,
+    add_input_flags,
+    add_replay_flags,
+    bounded_int,
+    dataset_input,
+)
 
 if TYPE_CHECKING:
     from hippo_nav.pipeline import RunResult
@@ -62,7 +70,10 @@ def _add_configuration(setup: argparse._ArgumentGroup) -> None:
         help="switch a grid module off (repeatable; adds to the config's lesions)",
     )
     setup.add_argument(
-        "--seed", type=int, default=None, help=f"override the config's seed (0 to {MAX_SEED}; default 0)"
+        "--seed",
+        type=bounded_int(0, MAX_SEED),
+        default=None,
+        help=f"override the config's seed (0 to {MAX_SEED}; default 0)",
     )
 
 
@@ -111,7 +122,7 @@ def _add_viewers(viewers: argparse._ArgumentGroup) -> None:
     )
     viewers.add_argument(
         "--video-every",
-        type=int,
+        type=bounded_int(1, MAX_FRAME),
         default=5,
         metavar="N",
         help="with --video, one video frame every N frames (and one after the final correction)",

@@ -24,7 +24,7 @@ import numpy as np
 
 from hippo_nav.datasets.base import MAX_IMAGE_PIXELS, StereoCalibration, check_calibration
 from hippo_nav.io.errors import MAX_SETTINGS_FILE_BYTES, DatasetError, file_error, read_bytes, read_text
-from hippo_nav.io.poses import matrix_from_quaternion, quaternion_from_matrix
+from hippo_nav.io.poses import check_regular_file, matrix_from_quaternion, quaternion_from_matrix
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".pgm", ".ppm", ".bmp", ".tif", ".tiff")
 
@@ -32,18 +32,57 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".pgm", ".ppm", ".bmp", ".tif", ".tif
 INTRINSICS_TOLERANCE = 1e-6
 
 
+MAX_YAML_VALUES = 10_000
+"""Numbers one calibration key may hold at most (a 4x4 matrix has 16): YAML aliases can make a 1 kB file
+stand for billions of values, which must not reach NumPy."""
+
+
+def _strict_loader() -> type:
+    """PyYAML's safe loader, stricter where a calibration file is concerned: a key given twice in one mapping
+    is an error (YAML would keep the last silently), and a scalar its constructor cannot take (a date
+    2001-13-45, an integer of thousands of digits) is a YAML error at its line, not a ValueError."""
+    import yaml
+
+    class Loader(yaml.SafeLoader):
+        def construct_object(self, node: yaml.Node, deep: bool = False) -> Any:
+            try:
+                return super().construct_object(node, deep)
+            except (ValueError, OverflowError) as err:
+                problem = str(err).split(":")[0][:80] if str(err) else type(err).__name__
+                raise yaml.constructor.ConstructorError(
+                    None,
+                    None,
+                    f"cannot read this {node.tag.rsplit(':', 1)[-1]}: {problem}",
+                    node.start_mark,
+                ) from None
+
+        def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+            seen: set[str] = set()
+            for key, _ in node.value:
+                if isinstance(key, yaml.ScalarNode) and key.tag != "tag:yaml.org,2002:merge":
+                    if key.value in seen:
+                        raise yaml.constructor.ConstructorError(
+                            None, None, f"key {key.value[:40]!r} appears twice; keep one", key.start_mark
+                        )
+                    seen.add(key.value)
+            return super().construct_mapping(node, deep)
+
+    return Loader
+
+
 def read_yaml(path: Path, what: str) -> dict[str, Any]:
     """A YAML mapping; OpenCV's `%YAML:1.0` first line (EuRoC's sensor.yaml files have it) is skipped."""
     import yaml
 
-    if not path.is_file():
-        raise DatasetError(f"{path}: {what} not found")
+    check_regular_file(path, what, f"the dataset needs its {path.name}")
     text = read_text(path, what, MAX_SETTINGS_FILE_BYTES)
     skipped = 0
     if text.startswith("%YAML:"):
         text, skipped = (text.split("\n", 1)[1] if "\n" in text else ""), 1
     try:
-        data = yaml.safe_load(text)
+        data = yaml.load(text, Loader=_strict_loader())  # a SafeLoader subclass: no arbitrary objects
+    except RecursionError:  # PyYAML composes nested collections recursively
+        raise file_error(path, f"nested too deeply to be a {what}") from None
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         line = None if mark is None else mark.line + 1 + skipped
@@ -59,13 +98,50 @@ def yaml_number(data: dict[str, Any], key: str, path: Path, *, positive: bool = 
     if key not in data:
         raise file_error(path, f"no '{key}' key")
     value = data[key]
+    if isinstance(value, bool):  # YAML's true/yes/on: float() would read 1.0
+        raise file_error(path, f"'{key}: {value}' is not a number")
     try:
         number = float(value)
-    except (TypeError, ValueError):
-        raise file_error(path, f"'{key}: {value}' is not a number") from None
+    except (TypeError, ValueError, OverflowError):  # OverflowError: an integer beyond float's range
+        raise file_error(path, f"'{key}: {_shown(value)}' is not a number (or not a finite one)") from None
     if not np.isfinite(number) or (positive and number <= 0):
-        raise file_error(path, f"'{key}: {value}' must be a {'positive ' if positive else ''}finite number")
+        raise file_error(
+            path, f"'{key}: {_shown(value)}' must be a {'positive ' if positive else ''}finite number"
+        )
     return number
+
+
+def _shown(value: object) -> str:
+    """`value` as quoted in a message: at most 40 characters (an integer of 5 000 digits has no str)."""
+    if isinstance(value, int) and abs(value) >= 10**40:
+        return f"<an integer of about {value.bit_length() * 0.30103:.0f} digits>"
+    text = str(value)
+    return text if len(text) <= 40 else text[:40] + "…"
+
+
+def _flat_numbers(value: Any, limit: int) -> list[float] | None:
+    """The numbers of a number, or of a (nested) list of them, in order; None when anything else is there
+    (other text, a mapping, a boolean). Iterative, and more than `limit` values give `limit` + 1 (of which only the
+    count matters) at once: an alias bomb costs nothing."""
+    numbers: list[float] = []
+    stack = [value]
+    while stack:
+        if len(numbers) + len(stack) > limit:
+            return [0.0] * (limit + 1)
+        item = stack.pop()
+        if isinstance(item, (list, tuple)):
+            stack.extend(reversed(item))
+        elif isinstance(item, (int, float, str)) and not isinstance(item, bool):
+            # Text too: PyYAML reads 1e-5 (no dot) as a string, and such files have always been read.
+            try:
+                numbers.append(float(item))
+            except OverflowError:  # an integer beyond float's range
+                numbers.append(float("inf"))
+            except ValueError:
+                return None
+        else:
+            return None
+    return numbers
 
 
 def yaml_numbers(data: dict[str, Any], key: str, path: Path, count: int | None, what: str) -> np.ndarray:
@@ -75,10 +151,13 @@ def yaml_numbers(data: dict[str, Any], key: str, path: Path, count: int | None, 
     value = data[key]
     if isinstance(value, dict) and "data" in value:  # OpenCV/Kalibr matrices: {rows, cols, data}
         value = value["data"]
-    try:
-        array = np.asarray(value, dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError):
-        raise file_error(path, f"'{key}' must be a list of numbers ({what})") from None
+    limit = MAX_YAML_VALUES if count is None else count
+    numbers = _flat_numbers(value, limit)
+    if numbers is None:
+        raise file_error(path, f"'{key}' must be a list of numbers ({what})")
+    if len(numbers) > limit:
+        raise file_error(path, f"'{key}' holds more than {limit} numbers ({what})")
+    array = np.array(numbers, dtype=np.float64)
     if count is not None and array.size != count:
         raise file_error(path, f"'{key}' needs {count} numbers ({what}), found {array.size}")
     if not np.all(np.isfinite(array)):

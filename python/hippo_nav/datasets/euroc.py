@@ -42,7 +42,10 @@ from hippo_nav.datasets.common import (
 )
 from hippo_nav.datasets.rectify import StereoRectifier, distortion_kind, rectify_rig
 from hippo_nav.io.errors import DatasetError, file_error, read_text
-from hippo_nav.io.poses import matrix_from_quaternion
+from hippo_nav.io.poses import MAX_COORDINATE_M, check_regular_file, matrix_from_quaternion
+
+_INT64 = (-(2**63), 2**63 - 1)
+"""The timestamps (ns) an image list may hold: NumPy keeps them as int64."""
 
 
 def find_mav0(path: Path) -> Path | None:
@@ -64,8 +67,14 @@ class CameraFiles:
         self.stamps_ns, self.files = self._read_list(folder / "data.csv")
         sensor = folder / "sensor.yaml"
         data = read_yaml(sensor, "camera calibration (sensor.yaml)")
+        # Names must be text: anything else (a list, or an alias of a huge one) is refused before str() of it.
+        for key in ("camera_model", "distortion_model"):
+            if key in data and not isinstance(data[key], str):
+                raise file_error(sensor, f"'{key}' must be a name (text), not a {type(data[key]).__name__}")
         if str(data.get("camera_model", "pinhole")).lower() != "pinhole":
-            raise file_error(sensor, f"camera_model {data['camera_model']!r} is not supported; use pinhole")
+            raise file_error(
+                sensor, f"camera_model {data['camera_model'][:40]!r} is not supported; use pinhole"
+            )
         fu, fv, cu, cv = yaml_numbers(data, "intrinsics", sensor, 4, "[fu, fv, cu, cv]")
         self.K = np.array([[fu, 0.0, cu], [0.0, fv, cv], [0.0, 0.0, 1.0]])
         self.model = str(data.get("distortion_model", "radial-tangential"))
@@ -78,15 +87,26 @@ class CameraFiles:
         self.body_from_sensor = yaml_numbers(data, "T_BS", sensor, 16, "4x4 body_from_sensor").reshape(4, 4)
         if np.abs(self.body_from_sensor[3] - [0, 0, 0, 1]).max() > 1e-9:
             raise file_error(sensor, "T_BS's last row must be [0, 0, 0, 1]")
+        # The rig's geometry inverts T_BS: its 3x3 block must be a rotation, its translation metres.
+        rotation = self.body_from_sensor[:3, :3]
+        if np.abs(rotation).max() > 1.001 or np.abs(rotation.T @ rotation - np.eye(3)).max() > 1e-3:
+            raise file_error(sensor, "T_BS's upper-left 3x3 block is not a rotation (RᵀR = I)")
+        if abs(np.linalg.det(rotation) - 1.0) > 1e-3:
+            raise file_error(sensor, "T_BS's upper-left 3x3 block is a reflection (det -1), not a rotation")
+        if np.abs(self.body_from_sensor[:3, 3]).max() > MAX_COORDINATE_M:
+            raise file_error(sensor, "T_BS's translation is not in metres (beyond 1e9)")
         width, height = yaml_numbers(data, "resolution", sensor, 2, "[width, height]")
+        if not (width.is_integer() and height.is_integer() and 1 <= width <= 2**16 and 1 <= height <= 2**16):
+            raise file_error(
+                sensor, f"resolution [{width:g}, {height:g}] must be whole pixels, 1 to 65536 a side"
+            )
         self.image_size_px = (int(width), int(height))
         check_intrinsics(fu, fv, cu, cv, self.image_size_px, str(sensor))
         self.sensor_path = sensor
 
     @staticmethod
     def _read_list(path: Path) -> tuple[np.ndarray, list[str]]:
-        if not path.is_file():
-            raise DatasetError(f"{path}: image list not found (an ASL camera folder has data.csv)")
+        check_regular_file(path, "image list", "an ASL camera folder has data.csv")
         stamps: list[int] = []
         files: list[str] = []
         for number, text in enumerate(read_text(path, "CSV file").splitlines(), start=1):
@@ -102,6 +122,10 @@ class CameraFiles:
                 raise file_error(
                     path, f"timestamp {fields[0][:30]!r} is not an integer (ns)", number
                 ) from None
+            if not _INT64[0] <= stamp <= _INT64[1]:
+                raise file_error(
+                    path, f"timestamp {fields[0][:30]!r} is beyond int64; timestamps are nanoseconds", number
+                )
             if stamps and stamp <= stamps[-1]:
                 raise file_error(path, f"timestamp {stamp} does not increase; sort the list by time", number)
             stamps.append(stamp)
@@ -133,8 +157,14 @@ def read_ground_truth(path: Path) -> tuple[np.ndarray, np.ndarray]:
         except ValueError:
             raise file_error(path, f"not a number in {line[:60]!r}", number) from None
         quaternion_wxyz = values[3:]
-        norm = float(np.linalg.norm(quaternion_wxyz))
-        if not np.isfinite(values).all() or abs(norm - 1) > 1e-3:
+        if not np.isfinite(values).all():
+            raise file_error(path, f"NaN or infinity in {line[:60]!r}", number)
+        if np.abs(values[:3]).max() > MAX_COORDINATE_M:
+            raise file_error(path, f"a position beyond {MAX_COORDINATE_M:g} m; positions are metres", number)
+        # A component beyond 1 is no unit quaternion; checked first, as the norm of 1e200s overflows.
+        big = float(np.abs(quaternion_wxyz).max())
+        norm = float(np.linalg.norm(quaternion_wxyz)) if big <= 2.0 else big
+        if abs(norm - 1) > 1e-3:
             raise file_error(
                 path, f"the quaternion (w x y z) has norm {norm:.4g}; it must be a unit quaternion", number
             )

@@ -35,7 +35,7 @@ from hippo_nav.datasets.common import (
     yaml_number,
 )
 from hippo_nav.io.errors import DatasetError, file_error, read_text
-from hippo_nav.io.poses import read_tum
+from hippo_nav.io.poses import MAX_TIMESTAMP_S, check_regular_file, read_tum
 
 CALIBRATION_FILE = "calibration.yaml"
 TIMES_FILE = "times.txt"
@@ -53,6 +53,7 @@ def list_images(folder: Path) -> list[Path]:
 
 
 def read_times_file(path: Path, count: int) -> np.ndarray:
+    check_regular_file(path, "timestamps file", "one timestamp (s) per image pair")
     stamps: list[float] = []
     for number, text in enumerate(read_text(path, "timestamps file").splitlines(), start=1):
         if not text.strip() or text.lstrip().startswith("#"):
@@ -63,6 +64,10 @@ def read_times_file(path: Path, count: int) -> np.ndarray:
             raise file_error(path, f"not a timestamp: {text.strip()[:40]!r}", number) from None
         if not np.isfinite(value):
             raise file_error(path, f"timestamp {value} is not finite", number)
+        if abs(value) > MAX_TIMESTAMP_S:
+            raise file_error(
+                path, f"timestamp {value:g} is beyond ±{MAX_TIMESTAMP_S:g} s; times.txt holds seconds", number
+            )
         if stamps and value <= stamps[-1]:
             raise file_error(path, f"timestamp {value} does not increase (previous {stamps[-1]})", number)
         stamps.append(value)
@@ -113,7 +118,7 @@ class StereoFolder(StereoLoader):
         first = read_image(self._left[0])
         size = (first.shape[1], first.shape[0])
         for key, actual in (("width", size[0]), ("height", size[1])):
-            if key in calib and int(yaml_number(calib, key, calib_path)) != actual:
+            if key in calib and yaml_number(calib, key, calib_path) != actual:
                 raise file_error(
                     calib_path,
                     f"{key}: {calib[key]} but {self._left[0].name} is {size[0]}x{size[1]} px; "

@@ -47,7 +47,7 @@ from hippo_nav.datasets.base import (
 )
 from hippo_nav.datasets.common import read_image_file
 from hippo_nav.io.errors import MAX_SETTINGS_FILE_BYTES, DatasetError, file_error, read_text
-from hippo_nav.io.poses import read_kitti_poses
+from hippo_nav.io.poses import MAX_TIMESTAMP_S, check_regular_file, read_kitti_poses
 
 # Rectified pairs share K; the public calibration files print K to 7 significant digits.
 _INTRINSICS_TOLERANCE = 1e-6
@@ -63,8 +63,7 @@ def read_calibration(
     """Parse a KITTI `calib.txt`; the pair's two lines are required (P0, P1 for `gray`, P2, P3 for `color`),
     the others optional, other keys (Tr) ignored. For `color` the calibration is put in camera 2's frame (module
     doc): its `P0`/`P1` are P2 and P3 less P2's translation."""
-    if not calib_path.is_file():
-        raise DatasetError(f"{calib_path}: calibration file not found (a KITTI sequence needs calib.txt)")
+    check_regular_file(calib_path, "calibration file", "a KITTI sequence needs calib.txt")
     matrices: dict[str, np.ndarray] = {}
     for number, text in enumerate(
         read_text(calib_path, "calibration", MAX_SETTINGS_FILE_BYTES).splitlines(), start=1
@@ -87,7 +86,9 @@ def read_calibration(
         except ValueError as err:
             raise file_error(calib_path, f"{key}: not a number: {err}", number) from None
         if not np.all(np.isfinite(matrix)):
-            raise file_error(calib_path, f"{key} contains NaN or infinity: {' '.join(fields)}", number)
+            bad = next(f for f, x in zip(fields, matrix.ravel()) if not np.isfinite(x))
+            shown = bad if len(bad) <= 30 else f"{bad[:30]}… ({len(bad)} characters)"
+            raise file_error(calib_path, f"{key} contains NaN or infinity: {shown}", number)
         if matrix[0, 0] <= 0 or matrix[1, 1] <= 0 or matrix[2, 2] != 1.0:
             raise file_error(
                 calib_path,
@@ -95,6 +96,16 @@ def read_calibration(
                 f"{matrix[2, 2]:g} (need fx, fy > 0 and P[2,2] = 1)",
                 number,
             )
+        # K is upper triangular (so invertible, with fx, fy > 0): the colour pair's pose solves with P2's K.
+        if matrix[1, 0] != 0 or matrix[2, 0] != 0 or matrix[2, 1] != 0:
+            raise file_error(
+                calib_path,
+                f"{key} is not a projection K[I|t]: P[1,0], P[2,0] and P[2,1] must be 0 (they are "
+                f"{matrix[1, 0]:g}, {matrix[2, 0]:g}, {matrix[2, 1]:g})",
+                number,
+            )
+        if key in matrices:
+            raise file_error(calib_path, f"a second {key} line; keep one", number)
         matrices[key] = matrix
     left_key, right_key = (f"P{n}" for n in CAMERAS[cameras])
     for required in (left_key, right_key):
@@ -111,7 +122,9 @@ def read_calibration(
     # In the left camera's frame: P = K[I|t] is linear in t, so the right camera's t less the left's.
     relative = right.copy()
     relative[:, 3] -= left[:, 3]
-    baseline_m = -relative[0, 3] / relative[0, 0]
+    # fx is checked for plausibility below (check_calibration); an absurd one (1e-300) must not overflow here.
+    with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+        baseline_m = -relative[0, 3] / relative[0, 0]
     if baseline_m <= 0:
         shown = f"{right_key}[0,3]" if left_key == "P0" else f"{right_key}[0,3] - {left_key}[0,3]"
         raise file_error(
@@ -138,8 +151,7 @@ def read_times(times_path: Path) -> np.ndarray:
 
     A repeated timestamp is an error too: it would give a frame no time to move in, and the TUM files of
     the run could not be paired by timestamp (evo and this project's reader need increasing stamps)."""
-    if not times_path.is_file():
-        raise DatasetError(f"{times_path}: timestamps file not found (a KITTI sequence needs times.txt)")
+    check_regular_file(times_path, "timestamps file", "a KITTI sequence needs times.txt")
     stamps: list[float] = []
     for number, text in enumerate(read_text(times_path, "timestamps file").splitlines(), start=1):
         if not text.strip():
@@ -150,6 +162,12 @@ def read_times(times_path: Path) -> np.ndarray:
             raise file_error(times_path, f"not a timestamp: {text.strip()[:40]!r}", number) from None
         if not np.isfinite(value):
             raise file_error(times_path, f"timestamp {value} is not finite", number)
+        if abs(value) > MAX_TIMESTAMP_S:
+            raise file_error(
+                times_path,
+                f"timestamp {value:g} is beyond ±{MAX_TIMESTAMP_S:g} s; times.txt holds seconds",
+                number,
+            )
         if stamps and value <= stamps[-1]:
             how = "repeats" if value == stamps[-1] else "goes back from"
             raise file_error(

@@ -34,7 +34,7 @@ import json
 import logging
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any, ClassVar, Literal
+from typing import Annotated, Any, ClassVar, Literal
 
 from pydantic import (
     Field,
@@ -49,6 +49,7 @@ from hippo_nav._defaults import ConfigSection
 from hippo_nav.closure import DEFAULT_PROPOSERS, PROPOSERS, ClosureConfig
 from hippo_nav.closure.config import migrate_flat_closure
 from hippo_nav.engine import EngineConfig
+from hippo_nav.io.atomic import write_text
 from hippo_nav.io.errors import MAX_SETTINGS_FILE_BYTES, read_text
 from hippo_nav.map import ClosureMode, MapParams
 from hippo_nav.plugs import Part, PartSections
@@ -67,6 +68,13 @@ _REGISTRIES: dict[str, Mapping[str, Part[Callable[..., object]]]] = {
 # Counts of frames, cells or iterations: generous, but an int a C library still takes (and no typo of a few
 # extra digits that would run for days).
 _MAX_COUNT = 1_000_000
+
+# How deep a config's sections nest at most: the deepest real setting is 3 levels down (closure.<proposer>.x);
+# a deeper structure is a mistake, and refusing it here keeps every recursive step after (validation, the
+# messages) far from Python's recursion limit.
+_MAX_DEPTH = 32
+# Characters of a bad value quoted in a message: a pasted megabyte stays one readable line.
+_SHOWN_CHARS = 60
 
 
 class _Section(ConfigSection):
@@ -224,9 +232,12 @@ class MotionLimits(_Section):
 
 class OutputConfig(_Section):
     figures: bool = Field(True, description="write the figures (cognitive map, neural state, rate maps)")
-    state_frames: list[int] | None = Field(
-        None,
-        description="frames (0-based positions in the run) of the neural state panels; None: first, middle, last",
+    # Each snapshot is the whole network state; a frame number past 10⁹ or thousands of them is a typo.
+    state_frames: Annotated[list[Annotated[int, Field(ge=0, le=10**9)]], Field(max_length=1000)] | None = (
+        Field(
+            None,
+            description="frames (0-based positions in the run) of the neural state panels; None: first, middle, last",
+        )
     )
     rate_map_bin_m: float = Field(
         4.0,
@@ -353,13 +364,72 @@ def _describe(err: ValidationError) -> str:
         if e["type"] == "value_error":
             message = message.removeprefix("Value error, ")
         given = e.get("input")
-        shown = "" if isinstance(given, (dict, list)) or given is None else f" (got {given!r})"
-        parts.append(f"{where}: {message}{shown}")
+        shown = "" if isinstance(given, (dict, list)) or given is None else f" (got {_shown(given)})"
+        parts.append(f"{_shown_text(where)}: {_shown_text(message, 4 * _SHOWN_CHARS)}{shown}")
     return "; ".join(parts)
+
+
+def _shown_text(text: str, limit: int = _SHOWN_CHARS) -> str:
+    """`text` cut to `limit` characters, a lone surrogate (JSON's "\\ud800") escaped: the message must encode
+    as UTF-8 wherever it is printed or written, and control characters escaped: the message stays one line."""
+    text = text.encode("utf-8", "backslashreplace").decode("utf-8")
+    # A newline or other control character in a key or value (found by Hypothesis) must not break the line.
+    text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in text)
+    return text if len(text) <= limit else f"{text[:limit]}… ({len(text)} characters)"
+
+
+def _shown(value: object) -> str:
+    """`repr(value)` cut to `_SHOWN_CHARS` (the repr of an int of 5 000 digits is refused by Python itself)."""
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) >= 10**_SHOWN_CHARS:
+        return f"an integer of about {value.bit_length() * 0.30103:.0f} digits"
+    return _shown_text(repr(value))
+
+
+def _check_structure(data: object, source: str) -> None:
+    """Refuse what no config holds and the validators after cannot take: nesting deeper than `_MAX_DEPTH`
+    and keys that are not strings (a YAML or TOML sweep file can give `1:`); the error names the place."""
+    stack: list[tuple[object, str, int]] = [(data, "", 0)]
+    while stack:
+        value, where, depth = stack.pop()
+        if depth > _MAX_DEPTH:
+            raise HippoNavError(
+                f"{source}: {_shown_text(where) or '(top level)'}: nested more than {_MAX_DEPTH} levels deep; a config holds "
+                "sections of settings, a few levels at most"
+            )
+        if isinstance(value, dict):
+            for key, item in value.items():
+                if not isinstance(key, str):
+                    raise HippoNavError(
+                        f"{source}: {_shown_text(where) or '(top level)'}: key {_shown(key)} is a {type(key).__name__}; "
+                        "setting names are text"
+                    )
+                stack.append((item, f"{where}.{key}".lstrip("."), depth + 1))
+        elif isinstance(value, (list, tuple)):
+            stack.extend((item, f"{where}[{i}]", depth + 1) for i, item in enumerate(value))
+
+
+def _refuse_duplicates(pairs: list[tuple[str, Any]]) -> dict[str, Any]:
+    """`json.loads`'s `object_pairs_hook`: a key given twice in one object is an error (JSON would keep the
+    last silently, so a setting edited in one place would be overridden by a forgotten copy below it)."""
+    data: dict[str, Any] = {}
+    for key, value in pairs:
+        if key in data:
+            raise _DuplicateKey(key)
+        data[key] = value
+    return data
+
+
+class _DuplicateKey(Exception):
+    def __init__(self, key: str) -> None:
+        super().__init__(key)
+        self.key = key
 
 
 def config_from_dict(data: dict[str, Any], source: str = "config") -> PipelineConfig:
     """Validate a dict into a `PipelineConfig`; errors name every bad field."""
+    if not isinstance(data, dict):
+        raise HippoNavError(f"{source}: a config holds one mapping of sections, not a {type(data).__name__}")
+    _check_structure(data, source)
     try:
         return PipelineConfig.model_validate(data)
     except ValidationError as err:
@@ -371,24 +441,47 @@ def load_config(path: str | Path | None) -> PipelineConfig:
     if path is None:
         return PipelineConfig()
     path = Path(path)
+    # A folder, a FIFO or a device is refused before it is opened: opening a FIFO with no writer would wait
+    # for ever.
+    if path.exists() and not path.is_file():
+        raise HippoNavError(f"{path}: not a config file (it is a folder or a special file); give a JSON file")
     try:
         text = read_text(path, "config file", MAX_SETTINGS_FILE_BYTES)
     except OSError as err:
-        raise HippoNavError(f"{path}: cannot read the config file ({err.strerror})") from None
+        raise HippoNavError(f"{path}: cannot read the config file ({err.strerror or err})") from None
+    if not text.strip():
+        raise HippoNavError(
+            f"{path}: the config file is empty; write {{}} for all defaults, or the sections to set"
+        )
     try:
-        data = json.loads(text)
+        data = json.loads(text, object_pairs_hook=_refuse_duplicates)
     except json.JSONDecodeError as err:
         raise HippoNavError(f"{path}:{err.lineno}: not valid JSON ({err.msg})") from None
+    except _DuplicateKey as err:
+        raise HippoNavError(f"{path}: key {_shown(err.key)} appears twice in one object; keep one") from None
+    except RecursionError:  # the C parser's guard against nesting thousands of levels deep
+        raise HippoNavError(
+            f"{path}: nested too deeply to be a config (a config holds sections of settings)"
+        ) from None
+    except ValueError:  # an integer of more than 4 300 digits (Python's limit for int("…"))
+        raise HippoNavError(
+            f"{path}: holds an integer of thousands of digits; a setting takes a number of a few digits"
+        ) from None
     if not isinstance(data, dict):
-        raise HippoNavError(f"{path}: a config file holds one JSON object of sections")
+        raise HippoNavError(
+            f"{path}: a config file holds one JSON object of sections, not a JSON {_json_kind(data)}"
+        )
     return config_from_dict(data, str(path))
+
+
+def _json_kind(value: object) -> str:
+    return {list: "array", str: "string", bool: "boolean", type(None): "null"}.get(type(value), "number")
 
 
 def write_config(config: PipelineConfig, path: str | Path) -> Path:
     """Write the fully resolved config (every default filled in) as JSON."""
-    path = Path(path)
-    path.write_text(json.dumps(resolved_config_dict(config), indent=2) + "\n")
-    return path
+    # Atomically (`hippo_nav.io.atomic`): a run stopped while writing leaves the old file or the whole new one.
+    return write_text(path, json.dumps(resolved_config_dict(config), indent=2) + "\n")
 
 
 def resolved_config_dict(config: PipelineConfig) -> dict[str, Any]:
