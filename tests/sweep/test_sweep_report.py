@@ -74,3 +74,28 @@ def test_a_report_of_nothing_or_an_unknown_metric_is_one_clear_line(plain_runs, 
     assert "no runs found" in capsys.readouterr().err
     assert main(["report", str(plain_runs), "--out", str(tmp_path / "r"), "--metric", "nope"]) == 2
     assert "--metric nope: no run has it" in capsys.readouterr().err
+
+
+def test_a_run_with_a_malformed_metrics_file_is_left_out_with_one_warning(
+    plain_runs, tmp_path, caplog, capsys
+):
+    """Real runs, one of them spoilt (a field of the wrong type): the other three are reported, the spoilt one
+    is named in one warning and in table.md, and the statistics are those of the three."""
+    import logging
+    import shutil
+
+    runs = tmp_path / "runs"
+    shutil.copytree(plain_runs, runs)
+    spoilt = runs / "dorsal_1" / "metrics.json"
+    metrics = json.loads(spoilt.read_text())
+    metrics["errors"]["corrected"]["ate_2d_m"] = "0.1"
+    spoilt.write_text(json.dumps(metrics))
+    out = tmp_path / "report"
+    with caplog.at_level(logging.WARNING):
+        assert main(["report", str(runs), "--out", str(out), "--no-figures"]) == 0
+    assert "3 runs (1 skipped" in capsys.readouterr().out
+    (warning,) = [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING]
+    assert f"{spoilt}: errors.corrected.ate_2d_m: expected a number or null, got text '0.1'" in warning
+    with (out / "table.csv").open() as f:
+        assert sorted(r["run_id"] for r in csv.DictReader(f)) == ["dorsal_0", "none_0", "none_1"]
+    assert "# Skipped runs (1)" in (out / "table.md").read_text()

@@ -23,12 +23,26 @@ def add_arguments(figures: argparse.ArgumentParser) -> None:
 
 
 def command(args: argparse.Namespace) -> int:
-    if args.appearance:
-        from hippo_nav.synthetic.figures import appearance_figure
+    from hippo_nav._core import HippoNavError
 
-        print(f"wrote {appearance_figure(Path(args.out) / 'appearance_levels.png')}")
-        return 0
-    from hippo_nav.theory.figures import write_all_figures
+    out = Path(args.out)
+    # Checked before the figures are drawn (seconds): a file at --out, or a folder that cannot be made, is
+    # one line naming it, not the system's "[Errno 17] File exists".
+    if out.exists() and not out.is_dir():
+        raise HippoNavError(f"--out {out}: not a folder (a file is there); give a folder for the PNG files")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise HippoNavError(f"--out {out}: cannot create the folder ({err.strerror or err})") from None
+    try:
+        if args.appearance:
+            from hippo_nav.synthetic.figures import appearance_figure
 
-    write_all_figures(args.out)
+            print(f"wrote {appearance_figure(out / 'appearance_levels.png')}")
+            return 0
+        from hippo_nav.theory.figures import write_all_figures
+
+        write_all_figures(out)
+    except OSError as err:
+        raise HippoNavError(f"{err.filename or out}: {err.strerror or err}") from None
     return 0

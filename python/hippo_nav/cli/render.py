@@ -22,16 +22,29 @@ def add_arguments(render: argparse.ArgumentParser) -> None:
 
     render.add_argument("--kitti", metavar="ROOT", required=True, help="KITTI root with poses/NN.txt")
     render.add_argument("--sequence", required=True, help="sequence number, e.g. 00")
-    render.add_argument("--start", type=int, default=None, help="first frame to render (default 0)")
-    render.add_argument("--stop", type=int, default=None, help="frame to stop before (default: all)")
+    from hippo_nav.cli.common import MAX_FRAME, MAX_SEED, MAX_THREADS, bounded_int, image_size
+    from hippo_nav.synthetic.render import MAX_SIDE_PX
+
+    render.add_argument(
+        "--start", type=bounded_int(0, MAX_FRAME - 1), default=None, help="first frame to render (default 0)"
+    )
+    render.add_argument(
+        "--stop", type=bounded_int(1, MAX_FRAME), default=None, help="frame to stop before (default: all)"
+    )
     render.add_argument("--out", required=True, help="KITTI root to write (created if missing)")
     render.add_argument(
         "--size",
+        type=image_size(16, MAX_SIDE_PX),
         default="320x96",
         metavar="WxH",
-        help="image size in pixels (default 320x96, KITTI's aspect)",
+        help=f"image size in pixels, each side 16 to {MAX_SIDE_PX} (default 320x96, KITTI's aspect)",
     )
-    render.add_argument("--seed", type=int, default=0, help="texture seed of the synthetic world (default 0)")
+    render.add_argument(
+        "--seed",
+        type=bounded_int(0, MAX_SEED),
+        default=0,
+        help=f"texture seed of the synthetic world, 0 to {MAX_SEED} (default 0)",
+    )
     render.add_argument(
         "--appearance",
         choices=list(APPEARANCE_LEVELS),
@@ -43,7 +56,9 @@ def add_arguments(render: argparse.ArgumentParser) -> None:
         action="store_true",
         help="posts on the pavements (trees, lamp posts: structure along the street besides its walls)",
     )
-    render.add_argument("--workers", type=int, default=2, help="rendering threads (default 2)")
+    render.add_argument(
+        "--workers", type=bounded_int(1, MAX_THREADS), default=2, help="rendering threads (default 2)"
+    )
     render.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -55,19 +70,24 @@ def command(args: argparse.Namespace) -> int:
     except ValueError:
         print(f"hippo-nav: error: --size {args.size!r}: give WIDTHxHEIGHT, e.g. 320x96", file=sys.stderr)
         return 2
-    root = render_kitti(
-        args.kitti,
-        args.sequence,
-        args.out,
-        args.start,
-        args.stop,
-        image_size_px=(width, height),
-        seed=args.seed,
-        appearance=args.appearance,
-        poles=args.poles,
-        workers=args.workers,
-        progress=not args.no_progress,
-    )
+    try:
+        root = render_kitti(
+            args.kitti,
+            args.sequence,
+            args.out,
+            args.start,
+            args.stop,
+            image_size_px=(width, height),
+            seed=args.seed,
+            appearance=args.appearance,
+            poles=args.poles,
+            workers=args.workers,
+            progress=not args.no_progress,
+        )
+    except OSError as err:  # e.g. --out under a file: the path and the reason, not the system's "[Errno …]"
+        from hippo_nav._core import HippoNavError
+
+        raise HippoNavError(f"{err.filename or args.out}: {err.strerror or err}") from None
     print(f"rendered sequence {args.sequence} into {root}; run it with: "
           f"hippo-nav run --dataset {root} --sequence {args.sequence}")  # fmt: skip
     return 0

@@ -13,7 +13,9 @@ DESCRIPTION = (
     "over seeds in table.md (mean, std, n, 95 %% confidence interval), figures (ATE per configuration with "
     "the seeds as points, the trajectories of one sequence overlaid, a metric against one swept key) and, "
     "when the runs differ in lesions, lesions.md (place-bump width and path-integration error per lesion "
-    "against the 1-D theory's order)."
+    "against the 1-D theory's order). A run whose files are malformed (metrics.json, manifest.json, "
+    "config.json, bump_table.csv, trajectories) is left out with one warning naming the file and the field, "
+    "and listed at the end of table.md; the report fails only when no run can be read."
 )
 
 
@@ -37,11 +39,21 @@ def add_arguments(report: argparse.ArgumentParser) -> None:
 
 
 def command(args: argparse.Namespace) -> int:
+    from hippo_nav._core import HippoNavError
     from hippo_nav.report import write_report
 
     out = args.out or (str(Path(args.dirs[0]) / "report") if len(args.dirs) == 1 else "runs/report")
-    written = write_report(
-        args.dirs, out, metric=args.metric, key=args.key, sequence=args.sequence, figures=not args.no_figures
-    )
-    print(f"{written.runs} runs; wrote {', '.join(p.name for p in written.files)} into {out}")
+    try:
+        written = write_report(
+            args.dirs,
+            out,
+            metric=args.metric,
+            key=args.key,
+            sequence=args.sequence,
+            figures=not args.no_figures,
+        )
+    except OSError as err:  # the file and the reason, not the system's "[Errno …]"
+        raise HippoNavError(f"{err.filename or out}: {err.strerror or err}") from None
+    skipped = f" ({len(written.skipped)} skipped: see the warnings above)" if written.skipped else ""
+    print(f"{written.runs} runs{skipped}; wrote {', '.join(p.name for p in written.files)} into {out}")
     return 0

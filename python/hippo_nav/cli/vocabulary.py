@@ -16,19 +16,42 @@ DESCRIPTION = (
     "Trains a vocabulary of binary words for the word view cells (docs/views.md) on the ORB "
     "features of the images in --images (every PNG/JPEG in the folder, gray or colour), or, without "
     "--images, on the procedural street renders the shipped vocabulary was trained on (the result is "
-    "then the shipped file). Use it with the config's view_words.vocabulary = FILE."
+    "then the shipped file). Use it with the config's view_words.vocabulary = FILE. An existing --out file "
+    "is kept unless --overwrite is given (checked before training, which takes a while)."
 )
 
 
 def add_arguments(vocabulary: argparse.ArgumentParser) -> None:
     vocabulary.add_argument("--out", required=True, metavar="FILE", help="vocabulary file to write")
     vocabulary.add_argument(
+        "--overwrite",
+        action="store_true",
+        help="replace --out when it exists (default: off: an existing file is an error, nothing is trained)",
+    )
+    vocabulary.add_argument(
         "--images", metavar="DIR", default=None, help="folder of training images (default: the renders)"
     )
-    vocabulary.add_argument("--every", type=int, default=1, metavar="N", help="use every Nth image")
-    vocabulary.add_argument("--branching", type=int, default=10, help="children per node of the word tree")
-    vocabulary.add_argument("--levels", type=int, default=4, help="depth of the word tree")
-    vocabulary.add_argument("--seed", type=int, default=0, help="seed of the k-means clustering")
+    from hippo_nav.cli.common import MAX_FRAME, MAX_SEED, bounded_int
+
+    vocabulary.add_argument(
+        "--every", type=bounded_int(1, MAX_FRAME), default=1, metavar="N", help="use every Nth image"
+    )
+    # The word tree's limits are the Rust trainer's (hippo_views::words::Vocabulary::train).
+    vocabulary.add_argument(
+        "--branching",
+        type=bounded_int(2, 64),
+        default=10,
+        help="children per node of the word tree (2 to 64)",
+    )
+    vocabulary.add_argument(
+        "--levels", type=bounded_int(1, 8), default=4, help="depth of the word tree (1 to 8)"
+    )
+    vocabulary.add_argument(
+        "--seed",
+        type=bounded_int(0, MAX_SEED),
+        default=0,
+        help=f"seed of the k-means clustering (0 to {MAX_SEED})",
+    )
 
 
 def command(args: argparse.Namespace) -> int:
@@ -49,10 +72,20 @@ def command(args: argparse.Namespace) -> int:
         if not paths:
             raise HippoNavError(f"--images {folder}: no PNG or JPEG images there")
         images = (_read_gray(p) for p in paths)
-    vocabulary = train_vocabulary(images, branching=args.branching, levels=args.levels, seed=args.seed)
     out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    vocabulary.save(out)
+    # Before training (minutes on a big folder): a refusal must come first, and never after the work.
+    if out.is_dir():
+        raise HippoNavError(
+            f"--out {out}: a folder; give the vocabulary file's name (e.g. {out / 'mine.voc'})"
+        )
+    if (out.exists() or out.is_symlink()) and not args.overwrite:
+        raise HippoNavError(f"--out {out}: the file exists; give --overwrite to replace it, or another --out")
+    vocabulary = train_vocabulary(images, branching=args.branching, levels=args.levels, seed=args.seed)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as err:  # the folder and the reason, not the system's "[Errno …]"
+        raise HippoNavError(f"--out {out}: cannot create {out.parent} ({err.strerror or err})") from None
+    vocabulary.save(out)  # atomic: a link planted at --out is replaced, never written through
     print(
         f"wrote {out}: {len(vocabulary)} words (branching {vocabulary.branching}, {vocabulary.levels} levels)"
     )

@@ -7,19 +7,33 @@
 - `figures.py`: a metric per configuration with the seeds as points, the trajectories of one sequence
   overlaid, a metric against one swept key;
 - `lesions.py`: `lesions.md`, the lesion conditions against the order the 1-D theory predicts.
+
+A run whose files are malformed is left out with one warning and listed in `table.md` (`collect.py`'s module
+doc); every file is written through `hippo_nav.io.atomic` (whole or not at all, never through a link planted
+at its name).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from hippo_nav._core import HippoNavError
-from hippo_nav.report.collect import RunRow, collect_runs
+from hippo_nav.io.atomic import write_text
+from hippo_nav.report.collect import RunFileError, RunRow, SkippedRun, collect, collect_runs
 from hippo_nav.report.tables import axis_columns, stats, value_columns, write_tables
 
-__all__ = ["Report", "RunRow", "collect_runs", "stats", "write_report"]
+__all__ = [
+    "Report",
+    "RunFileError",
+    "RunRow",
+    "SkippedRun",
+    "collect",
+    "collect_runs",
+    "stats",
+    "write_report",
+]
 
 
 @dataclass(frozen=True)
@@ -27,6 +41,8 @@ class Report:
     runs: int
     files: list[Path]
     rows: list[RunRow]
+    skipped: list[SkippedRun] = field(default_factory=list)
+    """The runs left out because a file of theirs is malformed (each also logged as a warning)."""
 
 
 def write_report(
@@ -39,23 +55,26 @@ def write_report(
     figures: bool = True,
 ) -> Report:
     """Read the runs under `dirs` and write the tables, `lesions.md` (when the runs differ in lesions) and
-    the figures into `out`."""
+    the figures into `out`. A run with a malformed file is skipped (`Report.skipped`, module doc); when no
+    run is readable, a `HippoNavError` says why the first was not."""
     from hippo_nav.report import figures as plots
     from hippo_nav.report.lesions import lesion_comparison
 
-    rows = collect_runs(dirs)
+    rows, skipped = collect(dirs)
+    if not rows:
+        raise HippoNavError(
+            f"none of the {len(skipped)} runs found could be read; the first: {skipped[0].reason}"
+        )
     keys = axis_columns(rows)
     if metric not in value_columns(rows):
         raise HippoNavError(f"--metric {metric}: no run has it; choose from {', '.join(value_columns(rows))}")
     if key is not None and key not in keys:
         raise HippoNavError(f"--key {key}: not a key the runs vary; they vary {', '.join(keys) or 'nothing'}")
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    files = write_tables(rows, out)
+    out = _report_folder(Path(out))
+    files = write_tables(rows, out, skipped)
     lesions = lesion_comparison(rows, keys)
     if lesions is not None:
-        (out / "lesions.md").write_text(lesions, encoding="utf-8")
-        files.append(out / "lesions.md")
+        files.append(write_text(out / "lesions.md", lesions))
     if figures:
         made = [
             plots.metric_by_configuration(rows, keys, metric, out),
@@ -65,4 +84,16 @@ def write_report(
         if chosen is not None:
             made.append(plots.response(rows, keys, metric, chosen, out))
         files += [p for p in made if p is not None]
-    return Report(len(rows), files, rows)
+    return Report(len(rows), files, rows, skipped)
+
+
+def _report_folder(out: Path) -> Path:
+    """`out`, created when missing; a `HippoNavError` naming it (not the system's `[Errno …]`) when it is a
+    file or cannot be made."""
+    if out.exists() and not out.is_dir():
+        raise HippoNavError(f"--out {out}: not a folder (a file is there); give a folder for the report")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise HippoNavError(f"--out {out}: cannot create the folder ({err.strerror or err})") from None
+    return out

@@ -12,12 +12,23 @@ mean of its two axes, averaged over the snapshot frames of `bump_table.csv`), `t
 1-D theory's fused width, `(Σ_m 1/σ_m²)^(−1/2)`, from the same frames' grid-module widths, lesioned modules
 absent) and `pi_error_2d_m` (path integration: the place code's trajectory against the odometry it
 integrates, ATE on the ground plane after SE(3) alignment, so the odometry's own error drops out).
+
+Every file a row is read from (`manifest.json`, `metrics.json`, `config.json`, `bump_table.csv`, the
+trajectories) is checked field by field as it is read: a file that is truncated, not JSON, too large, not a
+regular file, or holds a field of the wrong type or an impossible value (a negative count, NaN, a precision
+above 1) makes the run *unreadable*. A report over many runs goes on without it: the run is left out of every
+table and statistic (a half-read run would bias them silently), one warning names the file, the field and what
+is wrong, and `table.md` lists it under "Skipped runs". A missing optional file (no `bump_table.csv`, no
+trajectories) is not an error: its numbers are empty. A sweep's `sweep.json` only orders its runs: when it is
+unreadable the runs are in name order, with one warning.
 """
 
 from __future__ import annotations
 
 import csv
+import io
 import json
+import logging
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -28,41 +39,79 @@ import numpy as np
 
 from hippo_nav._core import HippoNavError
 from hippo_nav._defaults import dotted
-from hippo_nav.sweep.manifest import MANIFEST, RUNS_DIR, read_manifest
+from hippo_nav.io.errors import MAX_DATA_FILE_BYTES, MAX_SETTINGS_FILE_BYTES, read_text
+from hippo_nav.sweep.manifest import MANIFEST, RUNS_DIR, STATUSES
+
+log = logging.getLogger(__name__)
 
 LESION_MODULES = ("ventral", "intermediate", "dorsal")
+MAX_NESTING = 32
+"""The deepest nesting of a JSON file read (hippo-nav's own are 4 deep): deeper is not one of its files, and
+is refused before anything walks it (no recursion limit to hit)."""
+MAX_INTEGER = 2**53
+"""The largest integer a field may hold: beyond it a number is not exact as a float (and far beyond any count
+or setting hippo-nav writes)."""
+
+
+class RunFileError(HippoNavError):
+    """A file of a run is malformed; the message names the file, the field and what is wrong."""
+
+
+def _bad(path: Path, field: str | None, problem: str) -> RunFileError:
+    return RunFileError(f"{path}: {field}: {problem}" if field else f"{path}: {problem}")
+
+
+@dataclass(frozen=True)
+class SkippedRun:
+    """A run left out of a report: its folder and why (the file, the field, what is wrong)."""
+
+    folder: Path
+    reason: str
 
 
 def _at(*path: str) -> Callable[[dict[str, Any]], Any]:
+    """A getter of the field at `path`; None when a level is absent or null. A level that is there but not
+    an object raises `TypeError` naming the dotted field (the caller adds the file)."""
+
     def get(metrics: dict[str, Any]) -> Any:
         value: Any = metrics
-        for key in path:
-            if not isinstance(value, dict):
+        for depth, key in enumerate(path):
+            if value is None:
                 return None
+            if not isinstance(value, dict):
+                raise TypeError(".".join(path[:depth]), f"expected an object, got {_what(value)}")
             value = value.get(key)
         return value
 
     return get
 
 
+METRIC_FIELDS: dict[str, tuple[str, ...]] = {
+    "frames": ("frames",),
+    "ate_2d_vo_m": ("errors", "vo", "ate_2d_m"),
+    "ate_2d_online_m": ("errors", "online", "ate_2d_m"),
+    "ate_2d_corrected_m": ("errors", "corrected", "ate_2d_m"),
+    "ate_2d_neural_m": ("errors", "neural", "ate_2d_m"),
+    "ate_3d_vo_m": ("errors", "vo", "ate_3d_m"),
+    "ate_3d_corrected_m": ("errors", "corrected", "ate_3d_m"),
+    "t_rel_corrected_percent": ("errors", "corrected", "t_rel_percent"),
+    "loop_closures": ("loop_closures",),
+    "true_closures": ("closure_quality", "true_closures"),
+    "precision": ("closure_quality", "precision"),
+    "recall": ("closure_quality", "recall"),
+    "view_cells": ("view_cells",),
+    "vertices": ("vertices",),
+    "frames_per_s": ("timing", "frames_per_s"),
+}
+"""Where each number of `metrics.json` is: (column: path of keys)."""
 METRICS: list[tuple[str, Callable[[dict[str, Any]], Any]]] = [
-    ("frames", _at("frames")),
-    ("ate_2d_vo_m", _at("errors", "vo", "ate_2d_m")),
-    ("ate_2d_online_m", _at("errors", "online", "ate_2d_m")),
-    ("ate_2d_corrected_m", _at("errors", "corrected", "ate_2d_m")),
-    ("ate_2d_neural_m", _at("errors", "neural", "ate_2d_m")),
-    ("ate_3d_vo_m", _at("errors", "vo", "ate_3d_m")),
-    ("ate_3d_corrected_m", _at("errors", "corrected", "ate_3d_m")),
-    ("t_rel_corrected_percent", _at("errors", "corrected", "t_rel_percent")),
-    ("loop_closures", _at("loop_closures")),
-    ("true_closures", _at("closure_quality", "true_closures")),
-    ("precision", _at("closure_quality", "precision")),
-    ("recall", _at("closure_quality", "recall")),
-    ("view_cells", _at("view_cells")),
-    ("vertices", _at("vertices")),
-    ("frames_per_s", _at("timing", "frames_per_s")),
+    (name, _at(*path)) for name, path in METRIC_FIELDS.items()
 ]
 """Numbers read from `metrics.json`: (column, getter)."""
+COUNTS = ("frames", "loop_closures", "true_closures", "view_cells", "vertices")
+"""Columns that are whole numbers."""
+FRACTIONS = ("precision", "recall")
+"""Columns between 0 and 1."""
 MEASURED = ("place_sigma_rad", "theory_sigma_rad", "pi_error_2d_m")
 """Numbers measured from a run's files (module doc)."""
 TIMINGS = ("wall_s", "peak_rss_mb")
@@ -115,57 +164,218 @@ def find_run_folders(dirs: Sequence[str | Path]) -> list[tuple[Path, str]]:
 
 
 def _run_order(sweep: Path) -> dict[str, int]:
-    """A sweep's run ids in the order of its space (`sweep.json`)."""
-    data = _read_json(sweep / "sweep.json") or {}
-    runs = data.get("runs")
-    return (
-        {str(r.get("run_id")): i for i, r in enumerate(runs) if isinstance(r, dict)}
-        if isinstance(runs, list)
-        else {}
-    )
+    """A sweep's run ids in the order of its space (`sweep.json`); {} (name order, one warning) when the
+    file is unreadable: it orders the runs, it holds none of their numbers."""
+    path = sweep / "sweep.json"
+    try:
+        data = read_json_object(path) or {}
+        runs = data.get("runs")
+        if runs is None:
+            return {}
+        if not isinstance(runs, list):
+            raise _bad(path, "runs", f"expected a list of runs, got {_what(runs)}")
+        order: dict[str, int] = {}
+        for i, run in enumerate(runs):
+            run_id = run.get("run_id") if isinstance(run, dict) else None
+            if not isinstance(run_id, str):
+                raise _bad(path, f"runs[{i}].run_id", f"expected a run id (text), got {_what(run_id)}")
+            order.setdefault(run_id, i)
+        return order
+    except RunFileError as err:
+        log.warning("warning: %s; the runs of %s are listed in name order", err, sweep)
+        return {}
+
+
+def collect(dirs: Sequence[str | Path]) -> tuple[list[RunRow], list[SkippedRun]]:
+    """Every readable run under `dirs` as a row, and the runs left out because a file of theirs is
+    malformed (module doc), each logged as one warning."""
+    rows: list[RunRow] = []
+    skipped: list[SkippedRun] = []
+    for folder, sweep in find_run_folders(dirs):
+        try:
+            rows.append(_row(folder, sweep))
+        except RunFileError as err:
+            log.warning("warning: run left out of the report: %s", err)
+            skipped.append(SkippedRun(folder, str(err)))
+    return rows, skipped
 
 
 def collect_runs(dirs: Sequence[str | Path]) -> list[RunRow]:
-    """Every run under `dirs` as a row (module doc)."""
-    return [_row(folder, sweep) for folder, sweep in find_run_folders(dirs)]
+    """Every readable run under `dirs` as a row (module doc; the unreadable ones are logged and left out)."""
+    return collect(dirs)[0]
 
 
 def _row(folder: Path, sweep: str) -> RunRow:
-    manifest = read_manifest(folder)
-    metrics = _read_json(folder / "metrics.json")
+    manifest_path = folder / MANIFEST
+    metrics_path = folder / "metrics.json"
+    manifest = read_json_object(manifest_path)
+    metrics = read_json_object(metrics_path)
     if manifest is not None:
-        axes = dict(manifest.get("axes") or {})
-        status = str(manifest.get("status"))
-        error = manifest.get("error")
-        run_id = str(manifest.get("run_id", folder.name))
+        axes = _axes(manifest.get("axes"), manifest_path, "axes")
+        status = manifest.get("status")
+        if status not in STATUSES:
+            raise _bad(manifest_path, "status", f"expected one of {', '.join(STATUSES)}, got {_what(status)}")
+        error = _optional(manifest, "error", str, manifest_path, "text")
+        run_id = _optional(manifest, "run_id", str, manifest_path, "text")
+        if run_id is None or not run_id.strip():
+            run_id = folder.name
     else:
-        axes = _plain_axes(folder, metrics or {})
-        status = "interrupted" if (metrics or {}).get("interrupted") else "done"
-        error = (metrics or {}).get("stopped_by_error")
+        if metrics is None:  # a folder with neither: found by a name that is not a plain file
+            raise _bad(metrics_path, None, "missing")
+        axes = _plain_axes(folder, metrics)
+        interrupted = _optional(metrics, "interrupted", bool, metrics_path, "true or false")
+        status = "interrupted" if interrupted else "done"
+        error = _optional(metrics, "stopped_by_error", str, metrics_path, "text")
         run_id = folder.name
-    row = RunRow(folder, run_id, sweep, status, error, axes)
-    timing = (metrics or {}).get("timing") or {}
-    for name, get in METRICS:
-        row.values[name] = _number(get(metrics)) if metrics is not None else None
+    row = RunRow(folder, run_id, sweep, str(status), error, axes)
+    timing: dict[str, Any] = {}
+    if metrics is not None:
+        for name, get in METRICS:
+            row.values[name] = _metric(metrics, name, get, metrics_path)
+        timing = _object(metrics.get("timing"), metrics_path, "timing")
+    else:
+        row.values.update({name: None for name, _ in METRICS})
     row.values.update(bump_widths(folder / "bump_table.csv"))
     row.values["pi_error_2d_m"] = path_integration_error_m(folder)
-    row.values["wall_s"] = _number((manifest or {}).get("wall_s", timing.get("wall_s")))
-    row.values["peak_rss_mb"] = _number((manifest or {}).get("peak_rss_mb", timing.get("peak_rss_mb")))
+    for name in TIMINGS:
+        if manifest is not None and manifest.get(name) is not None:
+            row.values[name] = _checked(manifest.get(name), manifest_path, name, "non-negative")
+        else:
+            row.values[name] = _checked(timing.get(name), metrics_path, f"timing.{name}", "non-negative")
     return row
 
 
-def _read_json(path: Path) -> dict[str, Any] | None:
+def read_json_object(path: Path) -> dict[str, Any] | None:
+    """The JSON object in `path`, None when there is no such file; `RunFileError` naming the file when it
+    is not a readable regular file of at most `MAX_SETTINGS_FILE_BYTES`, not JSON, not an object or nested
+    deeper than `MAX_NESTING`."""
+    if not path.exists() and not path.is_symlink():
+        return None
+    if not path.is_file():
+        # A folder, a dangling link, a pipe (which would block the read forever) or a device.
+        raise _bad(
+            path, None, "not a regular file (a folder, a broken link or a device); expected a JSON file"
+        )
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+        text = read_text(path, "JSON file", MAX_SETTINGS_FILE_BYTES)
+    except OSError as err:
+        raise _bad(path, None, f"cannot read it ({err.strerror or err})") from None
+    except HippoNavError as err:  # too large, not UTF-8: the message already names the file
+        raise RunFileError(str(err)) from None
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as err:
+        raise _bad(
+            path,
+            None,
+            f"not valid JSON ({err.msg} at line {err.lineno}, column {err.colno}); is it truncated?",
+        ) from None
+    except (RecursionError, ValueError) as err:  # nesting beyond the parser's limit; an absurd number
+        raise _bad(path, None, f"not a JSON file hippo-nav wrote ({type(err).__name__}: {err})") from None
+    if not isinstance(data, dict):
+        raise _bad(path, None, f"expected a JSON object {{…}}, got {_what(data)}")
+    _check_nesting(data, path)
+    return data
+
+
+def _check_nesting(data: Any, path: Path) -> None:
+    """Refuse a document nested deeper than `MAX_NESTING` (iteratively: no recursion limit to hit here, and
+    none for the recursive readers after it)."""
+    stack: list[tuple[Any, int]] = [(data, 1)]
+    while stack:
+        value, depth = stack.pop()
+        if depth > MAX_NESTING:
+            raise _bad(path, None, f"nested more than {MAX_NESTING} levels deep; not a file hippo-nav wrote")
+        children = value.values() if isinstance(value, dict) else value if isinstance(value, list) else ()
+        stack += [(child, depth + 1) for child in children if isinstance(child, (dict, list))]
+
+
+def _what(value: Any) -> str:
+    """A value as a message shows it: its JSON type and, when short, the value."""
+    kind = {dict: "an object", list: "a list", str: "text", bool: "a boolean", type(None): "null"}.get(
+        type(value), "a number" if isinstance(value, (int, float)) else type(value).__name__
+    )
+    shown = repr(value) if not isinstance(value, (dict, list)) else ""
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) > MAX_INTEGER:
+        shown = f"with {len(str(abs(value)))} digits"
+    return f"{kind} {shown[:40]}{'…' if len(shown) > 40 else ''}".rstrip()
+
+
+def _object(value: Any, path: Path, field: str) -> dict[str, Any]:
+    """An optional object field: {} when absent or null."""
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise _bad(path, field, f"expected an object, got {_what(value)}")
+    return value
+
+
+def _optional(data: dict[str, Any], field: str, kind: type, path: Path, described: str) -> Any:
+    """An optional field of one JSON type (`kind`; a boolean is not a number): None when absent or null."""
+    value = data.get(field)
+    if value is None:
         return None
-    return data if isinstance(data, dict) else None
+    if not isinstance(value, kind) or (kind is not bool and isinstance(value, bool)):
+        raise _bad(path, field, f"expected {described} or null, got {_what(value)}")
+    return value
 
 
-def _number(value: Any) -> float | None:
+def _checked(value: Any, path: Path, field: str, kind: str) -> float | None:
+    """A number of a run: None when absent or null; a `RunFileError` naming the field when it is not a
+    number, not finite (hippo-nav writes null for a missing number, never NaN), negative, not whole for a
+    count (`kind` "count") or above 1 for a fraction (`kind` "fraction")."""
+    if value is None:
+        return None
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        return None
-    return float(value) if math.isfinite(value) else None
+        raise _bad(path, field, f"expected a number or null, got {_what(value)}")
+    if isinstance(value, int) and abs(value) > MAX_INTEGER:
+        raise _bad(path, field, f"out of range ({_what(value)})")
+    if not math.isfinite(value):
+        raise _bad(path, field, f"{value} is not a number hippo-nav writes (a missing number is null)")
+    if value < 0:
+        raise _bad(path, field, f"{value} is negative; it cannot be")
+    if kind == "count" and float(value) != int(value):
+        raise _bad(path, field, f"{value} is not a whole number; it is a count")
+    if kind == "fraction" and value > 1:
+        raise _bad(path, field, f"{value} is above 1; it is a fraction")
+    return float(value)
+
+
+def _metric(
+    metrics: dict[str, Any], name: str, get: Callable[[dict[str, Any]], Any], path: Path
+) -> float | None:
+    try:
+        value = get(metrics)
+    except TypeError as err:
+        field, problem = err.args
+        raise _bad(path, field, problem) from None
+    kind = "count" if name in COUNTS else "fraction" if name in FRACTIONS else "non-negative"
+    return _checked(value, path, ".".join(METRIC_FIELDS.get(name, (name,))), kind)
+
+
+def _axes(value: Any, path: Path, field: str) -> dict[str, Any]:
+    axes = _object(value, path, field)
+    for key, axis in axes.items():
+        _check_axis_value(axis, path, f"{field}.{key}")
+    return dict(axes)
+
+
+def _check_axis_value(value: Any, path: Path, field: str) -> None:
+    """An axis is compared, sorted and drawn: its numbers must be finite and of a size a float holds exactly
+    (`_check_nesting` bounds the depth of the recursion)."""
+    if isinstance(value, bool) or value is None or isinstance(value, str):
+        return
+    if isinstance(value, (int, float)):
+        if (isinstance(value, int) and abs(value) > MAX_INTEGER) or not math.isfinite(value):
+            raise _bad(path, field, f"out of range ({_what(value)}); expected a finite number")
+        return
+    items = (
+        value.items() if isinstance(value, dict) else enumerate(value) if isinstance(value, list) else None
+    )
+    if items is None:
+        raise _bad(path, field, f"expected a JSON value, got {_what(value)}")
+    for key, item in items:
+        _check_axis_value(item, path, f"{field}.{key}" if isinstance(value, dict) else f"{field}[{key}]")
 
 
 def lesion_condition(lesioned: Sequence[bool]) -> str:
@@ -179,61 +389,121 @@ def _plain_axes(folder: Path, metrics: dict[str, Any]) -> dict[str, Any]:
     defaults, seed."""
     from hippo_nav.system.config import PipelineConfig, resolved_config_dict
 
+    metrics_path = folder / "metrics.json"
+    lesioned = metrics.get("lesioned")
+    if lesioned is not None and not (
+        isinstance(lesioned, list) and all(isinstance(v, bool) for v in lesioned)
+    ):
+        raise _bad(
+            metrics_path, "lesioned", f"expected a list of true/false per module, got {_what(lesioned)}"
+        )
+    seed = _optional(metrics, "seed", int, metrics_path, "a whole number")
+    if seed is not None and not 0 <= seed <= MAX_INTEGER:
+        raise _bad(metrics_path, "seed", f"out of range ({_what(seed)}); a seed is 0 or more")
     axes: dict[str, Any] = {
-        "sequence": metrics.get("sequence"),
-        "lesion": lesion_condition(metrics.get("lesioned") or []),
+        "sequence": _optional(metrics, "sequence", str, metrics_path, "text"),
+        "lesion": lesion_condition(lesioned or []),
     }
-    config = _read_json(folder / "config.json")
+    config_path = folder / "config.json"
+    config = read_json_object(config_path)
     if config is not None:
         defaults = dotted(resolved_config_dict(PipelineConfig()))
         for key, value in dotted(config).items():
             # The seed and the lesions are axes of their own (vo.seed follows the seed).
             own_axis = key in ("seed", "vo.seed") or key.startswith("lesions.")
             if key in defaults and value != defaults[key] and not own_axis:
+                _check_axis_value(value, config_path, key)
                 axes[key] = value
-    axes["seed"] = metrics.get("seed")
+    axes["seed"] = seed
     return axes
 
 
+BUMP_COLUMNS = ("frame", "what", "k", "sigma_x_rad", "sigma_y_rad")
+"""The columns of `bump_table.csv` the widths are measured from."""
+MIN_WIDTH_RAD = 1e-9
+"""The narrowest bump width read (module doc of `bump_widths`)."""
+
+
 def bump_widths(path: Path) -> dict[str, float | None]:
-    """`place_sigma_rad` and `theory_sigma_rad` of a run's `bump_table.csv` (module doc)."""
+    """`place_sigma_rad` and `theory_sigma_rad` of a run's `bump_table.csv` (module doc); both None without
+    the file, a `RunFileError` naming the line and column when it is malformed."""
     from hippo_nav.theory import fused_sigma
 
     empty: dict[str, float | None] = {"place_sigma_rad": None, "theory_sigma_rad": None}
-    try:
-        with path.open(newline="", encoding="utf-8") as f:
-            rows = list(csv.DictReader(f))
-    except OSError:
+    if not path.exists() and not path.is_symlink():
         return empty
-    place: list[float] = []
-    theory: list[float] = []
-    for frame in sorted({r["frame"] for r in rows}):
-        at = [r for r in rows if r["frame"] == frame]
-        for r in at:
-            if r["what"] == "place":
-                place.append(0.5 * (float(r["sigma_x_rad"]) + float(r["sigma_y_rad"])))
-        modules: dict[str, list[float]] = {}
-        for r in at:
-            if r["what"] == "grid":
-                modules.setdefault(r["k"], []).append(
-                    0.5 * (float(r["sigma_x_rad"]) + float(r["sigma_y_rad"]))
-                )
-        if modules:
-            theory.append(fused_sigma([float(np.mean(widths)) for widths in modules.values()]))
+    if not path.is_file():
+        raise _bad(
+            path, None, "not a regular file (a folder, a broken link or a device); expected a CSV file"
+        )
+    try:
+        text = read_text(path, "bump table", MAX_DATA_FILE_BYTES)
+    except OSError as err:
+        raise _bad(path, None, f"cannot read it ({err.strerror or err})") from None
+    except HippoNavError as err:
+        raise RunFileError(str(err)) from None
+    place: dict[int, list[float]] = {}
+    grid: dict[int, dict[str, list[float]]] = {}
+    try:
+        reader = csv.DictReader(io.StringIO(text, newline=""))
+        missing = [c for c in BUMP_COLUMNS if c not in (reader.fieldnames or [])]
+        if missing:
+            raise _bad(
+                path, "line 1", f"no column {', '.join(missing)}; expected a header {','.join(BUMP_COLUMNS)}"
+            )
+        for row in reader:
+            line = reader.line_num
+            if any(row.get(c) is None for c in BUMP_COLUMNS):
+                raise _bad(path, f"line {line}", "fewer cells than the header's columns; is it truncated?")
+            frame = _csv_number(row["frame"], path, line, "frame")
+            # A width is positive (1/σ² fuses them) and far above 1e-9 rad (a grid of 64 cells).
+            width = 0.5 * (
+                _csv_number(row["sigma_x_rad"], path, line, "sigma_x_rad", MIN_WIDTH_RAD)
+                + _csv_number(row["sigma_y_rad"], path, line, "sigma_y_rad", MIN_WIDTH_RAD)
+            )
+            if row["what"] == "place":
+                place.setdefault(int(frame), []).append(width)
+            elif row["what"] == "grid":
+                grid.setdefault(int(frame), {}).setdefault(row["k"], []).append(width)
+    except csv.Error as err:
+        raise _bad(path, None, f"not a CSV table ({err})") from None
+    theory = [
+        fused_sigma([float(np.mean(widths)) for widths in modules.values()]) for modules in grid.values()
+    ]
+    place_all = [w for widths in place.values() for w in widths]
     return {
-        "place_sigma_rad": float(np.mean(place)) if place else None,
+        "place_sigma_rad": float(np.mean(place_all)) if place_all else None,
         "theory_sigma_rad": float(np.mean(theory)) if theory else None,
     }
 
 
+def _csv_number(cell: str, path: Path, line: int, column: str, least: float = 0.0) -> float:
+    try:
+        value = float(cell)
+    except ValueError:
+        raise _bad(path, f"line {line}, column {column}", f"{cell[:40]!r} is not a number") from None
+    if not (math.isfinite(value) and least <= value <= MAX_INTEGER):
+        raise _bad(path, f"line {line}, column {column}", f"{cell[:40]!r}: expected a number from {least:g}")
+    return value
+
+
 def path_integration_error_m(folder: Path) -> float | None:
-    """ATE 2-D of the place code's trajectory against the odometry's (module doc); None without them."""
+    """ATE 2-D of the place code's trajectory against the odometry's (module doc); None without them (or
+    too few poses to align), a `RunFileError` when one of them is malformed."""
     from hippo_nav.io import DatasetError, read_kitti_poses
     from hippo_nav.metrics import ate_rmse
 
-    try:
-        odometry = read_kitti_poses(folder / "trajectory_vo.kitti.txt")
-        neural = read_kitti_poses(folder / "trajectory_neural.kitti.txt")
-        return _number(ate_rmse(odometry, neural, planar=True, align="se3"))
-    except (OSError, DatasetError, HippoNavError):
+    files = [folder / "trajectory_vo.kitti.txt", folder / "trajectory_neural.kitti.txt"]
+    if not all(f.exists() for f in files):
         return None
+    try:
+        odometry, neural = (read_kitti_poses(f) for f in files)
+    except DatasetError as err:
+        raise RunFileError(str(err)) from None
+    except OSError as err:
+        raise _bad(Path(err.filename or files[0]), None, f"cannot read it ({err.strerror or err})") from None
+    try:
+        value = ate_rmse(odometry, neural, planar=True, align="se3")
+    except (HippoNavError, ValueError, np.linalg.LinAlgError):
+        return None  # e.g. a run of one frame: nothing to align
+    return float(value) if math.isfinite(value) else None

@@ -19,6 +19,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
+from hippo_nav.io.atomic import atomic_path
 from hippo_nav.report.collect import RunRow
 from hippo_nav.report.tables import Group, groups, stats
 
@@ -79,6 +80,7 @@ def trajectories(rows: Sequence[RunRow], keys: Sequence[str], sequence: str | No
     figure = _new_figure(6.5, 5.5)
     ax = figure.add_subplot()
     truth_drawn = False
+    drawn = 0
     for group in found[:MAX_TRAJECTORIES]:
         row = group.rows[0]
         try:
@@ -92,6 +94,9 @@ def trajectories(rows: Sequence[RunRow], keys: Sequence[str], sequence: str | No
             truth_drawn = True
         xy = planar_xy(corrected)
         ax.plot(xy[:, 0], xy[:, 1], linewidth=1.0, label=group.label())
+        drawn += 1
+    if drawn == 0:  # no run has a readable trajectory: no figure (an empty one would be drawn with a warning)
+        return None
     more = (
         f" (first {MAX_TRAJECTORIES} of {len(found)} configurations)" if len(found) > MAX_TRAJECTORIES else ""
     )
@@ -156,5 +161,7 @@ def response(rows: Sequence[RunRow], keys: Sequence[str], metric: str, key: str,
 
 
 def _save(figure: Figure, path: Path) -> Path:
-    figure.savefig(path, dpi=DPI)
+    # Through a temporary beside it (same suffix: matplotlib picks PNG by it), renamed over `path`.
+    with atomic_path(path) as tmp:
+        figure.savefig(tmp, dpi=DPI)
     return path

@@ -17,7 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from hippo_nav.report.collect import MEASURED, METRICS, TIMINGS, RunRow
+from hippo_nav.io.atomic import open_atomic, write_text
+from hippo_nav.report.collect import MEASURED, METRICS, TIMINGS, RunRow, SkippedRun
 
 _T_975 = [12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145,
           2.131, 2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048,
@@ -117,12 +118,13 @@ def _cell(value: Any, digits: int = 4) -> str:
     return str(value)
 
 
-def write_tables(rows: Sequence[RunRow], out: Path) -> list[Path]:
-    """table.csv, groups.csv and table.md (runs, then the statistics over seeds) into `out`."""
+def write_tables(rows: Sequence[RunRow], out: Path, skipped: Sequence[SkippedRun] = ()) -> list[Path]:
+    """table.csv, groups.csv and table.md (runs, then the statistics over seeds, then the runs `skipped`)
+    into `out`, each written atomically (`hippo_nav.io.atomic`)."""
     keys = axis_columns(rows)
     columns = value_columns(rows)
     table_csv = out / "table.csv"
-    with table_csv.open("w", newline="", encoding="utf-8") as f:
+    with open_atomic(table_csv, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(["run_id", "sweep", "status", *keys, *columns, "error", "folder"])
         for r in rows:
@@ -132,7 +134,7 @@ def write_tables(rows: Sequence[RunRow], out: Path) -> list[Path]:
             )  # fmt: skip
     found = groups(rows, keys)
     groups_csv = out / "groups.csv"
-    with groups_csv.open("w", newline="", encoding="utf-8") as f:
+    with open_atomic(groups_csv, "w", newline="") as f:
         w = csv.writer(f)
         config_keys = [k for k in keys if k != "seed"]
         stat_names = [f"{c}_{s}" for c in columns for s in ("mean", "std", "n", "ci95")]
@@ -145,11 +147,17 @@ def write_tables(rows: Sequence[RunRow], out: Path) -> list[Path]:
             failed = sum(r.status != "done" for r in g.rows)
             w.writerow([*(_cell(g.axes.get(k), 12) for k in config_keys), len(g.rows), failed, *cells])
     table_md = out / "table.md"
-    table_md.write_text(_markdown(rows, keys, columns, found), encoding="utf-8")
+    write_text(table_md, _markdown(rows, keys, columns, found, skipped))
     return [table_csv, groups_csv, table_md]
 
 
-def _markdown(rows: Sequence[RunRow], keys: list[str], columns: list[str], found: list[Group]) -> str:
+def _markdown(
+    rows: Sequence[RunRow],
+    keys: list[str],
+    columns: list[str],
+    found: list[Group],
+    skipped: Sequence[SkippedRun] = (),
+) -> str:
     lines = [f"# Runs ({len(rows)})", ""]
     head = ["run", "status", *keys, *columns]
     lines += ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
@@ -167,6 +175,10 @@ def _markdown(rows: Sequence[RunRow], keys: list[str], columns: list[str], found
     for g in found:
         cells = [g.label(), str(len(g.rows))] + [g.stats(c).text(_digits(c)) for c in columns]
         lines.append("| " + " | ".join(c.replace("|", "\\|") for c in cells) + " |")
+    if skipped:
+        # A report read later must say which runs it left out, not only the warnings of the day it was made.
+        lines += ["", f"# Skipped runs ({len(skipped)}): a file is malformed; not in any table above", ""]
+        lines += [f"- {s.reason}".replace("\n", " ") for s in skipped]
     return "\n".join(lines) + "\n"
 
 

@@ -13,6 +13,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
 from hippo_nav.io.atomic import write_image
+from hippo_nav.io.errors import DatasetError
 from hippo_nav.synthetic.appearance import (
     APPEARANCE_LEVELS,
     AppearanceModel,
@@ -20,7 +21,12 @@ from hippo_nav.synthetic.appearance import (
     shift_sideways,
     shutter_motion,
 )
-from hippo_nav.synthetic.render import KITTI_FOCAL_RATIO, stereo_projections
+from hippo_nav.synthetic.render import (
+    KITTI_FOCAL_RATIO,
+    check_image_size,
+    check_render_options,
+    stereo_projections,
+)
 from hippo_nav.synthetic.trajectories import loop_trajectory
 from hippo_nav.synthetic.world import StreetWorld
 
@@ -35,7 +41,11 @@ def appearance_images(
 
     Pass 1 is rendered as a revisit is: every object in its pass-1 state, the pass-1 light and, where the
     level has one, the pass-1 lane offset."""
+    image_size_px = check_image_size(image_size_px)
+    seed = check_render_options(seed, 1, False)[0]
     poses = loop_trajectory(200)
+    if isinstance(frame, bool) or not isinstance(frame, (int, np.integer)) or not 0 <= frame < len(poses) - 1:
+        raise DatasetError(f"frame {frame!r}: give a frame of the demo loop, 0 to {len(poses) - 2}")
     world = StreetWorld(poses[:, :3, 3], seed=seed)
     K = stereo_projections(image_size_px, 0.537, KITTI_FOCAL_RATIO)[0][:, :3]
     images = {}
@@ -58,6 +68,7 @@ def appearance_images(
 
 def appearance_figure(path: str | Path, image_size_px: tuple[int, int] = (320, 96), seed: int = 0) -> Path:
     """One place at each appearance level (rows), pass 0 and pass 1 (columns), as a PNG at `path`."""
+    image_size_px = check_image_size(image_size_px)
     images = appearance_images(image_size_px, seed)
     width, height = image_size_px
     figure = Figure(figsize=(2 * width / 100 + 0.5, len(APPEARANCE_LEVELS) * (height / 100 + 0.3) + 0.2))

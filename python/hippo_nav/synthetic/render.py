@@ -53,6 +53,37 @@ def check_sequence_name(sequence: str) -> str:
     return name
 
 
+MAX_RENDER_SEED = 2**63 - 1
+"""Largest texture seed: NumPy's seed sequences take any non-negative integer; a bigger one is a typo, and
+would not be one integer in the render stamp's JSON for every reader."""
+MAX_RENDER_WORKERS = 4096
+"""Most rendering threads (more than any machine has cores; each holds a frame's buffers)."""
+
+
+def check_render_options(seed: object, workers: object, poles: object) -> tuple[int, int, bool]:
+    """(seed, workers, poles) when the seed is an integer from 0 to `MAX_RENDER_SEED`, the workers from 0
+    (taken as 1, as always) to `MAX_RENDER_WORKERS` and poles a boolean; a `DatasetError` saying which and
+    what to give otherwise (a negative seed was a NumPy traceback, after the stamp was written)."""
+    import numbers
+
+    def integer(value: object, what: str, low: int, high: int, give: str) -> int:
+        if (
+            isinstance(value, bool)
+            or not isinstance(value, numbers.Integral)
+            or not low <= int(value) <= high
+        ):
+            raise DatasetError(f"{what} {value!r}: give {give}")
+        return int(value)
+
+    seed = integer(seed, "seed", 0, MAX_RENDER_SEED, f"an integer from 0 to {MAX_RENDER_SEED}")
+    workers = integer(
+        workers, "workers", 0, MAX_RENDER_WORKERS, f"a number of threads from 1 to {MAX_RENDER_WORKERS}"
+    )
+    if not isinstance(poles, (bool, np.bool_)):
+        raise DatasetError(f"poles {poles!r}: give True or False")
+    return seed, workers, bool(poles)
+
+
 def check_image_size(image_size_px: tuple[int, int]) -> tuple[int, int]:
     """(width, height) when each side is 16 to `MAX_SIDE_PX` pixels."""
     width, height = (int(x) for x in image_size_px)
@@ -412,6 +443,7 @@ def render_kitti(
     # leave a stamp that blocks the corrected command.
     sequence = check_sequence_name(sequence)
     image_size_px = check_image_size(image_size_px)
+    seed, workers, poles = check_render_options(seed, workers, poles)
     kitti_root = Path(kitti_root)
     ground_truth, times_s = _read_kitti_ground_truth(kitti_root, sequence)
     lo, hi = _checked_frame_range(start, stop, len(ground_truth))

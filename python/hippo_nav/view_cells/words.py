@@ -139,15 +139,24 @@ class Vocabulary:
 
     @staticmethod
     def load(path: str | Path) -> Vocabulary:
+        """A vocabulary file (`save`, `hippo-nav vocabulary`); a missing, unreadable or damaged file
+        (truncated, bit-flipped: its checksum fails; another format; empty; over `MAX_DATA_FILE_BYTES`; a
+        folder) is one `HippoNavError` naming the file and what is wrong."""
         path = Path(path)
+        if path.exists() and not path.is_file():
+            # A folder, or a pipe or device (whose read could block for ever): refused before opening it.
+            raise HippoNavError(
+                f"{path}: not a vocabulary file (a folder or a device); give the file that "
+                "`hippo-nav vocabulary --out FILE` wrote"
+            )
         try:
             data = read_bytes(path, "vocabulary")
         except OSError as err:
-            raise HippoNavError(f"{path}: cannot read the vocabulary ({err.strerror})") from err
+            raise HippoNavError(f"{path}: cannot read the vocabulary ({err.strerror or err})") from None
         try:
             return Vocabulary(_core._Vocabulary.from_bytes(data))
         except HippoNavError as err:
-            raise HippoNavError(f"{path}: {err}") from err
+            raise HippoNavError(f"{path}: {err}") from None
 
     def save(self, path: str | Path) -> None:
         """Write the vocabulary atomically (`hippo_nav.io.atomic`)."""
