@@ -131,8 +131,10 @@ def test_resume_keeps_done_and_failed_runs_and_reruns_the_rest(tmp_path):
                 "config_sha256": config or config_hash(spec.pipeline_config()),
             },
         )
-        if metrics:
-            (folder / "metrics.json").write_text("{}")
+        if metrics:  # what a finished run writes (the parts resume checks)
+            (folder / "metrics.json").write_text(
+                '{"frames": 200, "interrupted": false, "stopped_by_error": null}'
+            )
 
     leave(runs[0], "done")
     leave(runs[1], "failed")

@@ -5,7 +5,14 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from hippo_nav.cli.common import add_input_flags, add_replay_flags, loader_options
+from hippo_nav.cli.common import (
+    MAX_RETRIES,
+    MAX_THREADS,
+    add_input_flags,
+    add_replay_flags,
+    bounded_int,
+    loader_options,
+)
 
 HELP = "run the pipeline over a cross-product of settings × seeds × sequences × odometries, on Ray"
 DESCRIPTION = (
@@ -13,8 +20,9 @@ DESCRIPTION = (
     "TOML/YAML sweep file, docs/sweep.md) on Ray: on this machine by default, or on a cluster with "
     "--address. Each run writes its results folder and manifest.json into OUT/runs/<id>/. Rerunning the "
     "same command skips finished runs and reruns interrupted ones; a failing run is listed and never "
-    "stops the others; Ctrl-C stops cleanly. Exit 0: every run done; 1: some failed; 130: interrupted. "
-    "Needs pip install 'hippo-nav[sweep]'."
+    "stops the others; Ctrl-C, SIGTERM and SIGHUP stop cleanly (the runs in flight write what they did). "
+    "At most 10000 runs. Exit 0: every run done; 1: some failed; 2: bad input; 130/143/129: interrupted by "
+    "SIGINT/SIGTERM/SIGHUP. Needs pip install 'hippo-nav[sweep]'."
 )
 
 
@@ -68,18 +76,21 @@ def _add_space(space: argparse._ArgumentGroup) -> None:
 def _add_execution(execution: argparse._ArgumentGroup) -> None:
     execution.add_argument(
         "--address", metavar="auto|HOST:PORT", default=None,
-        help="join a running Ray cluster (`ray start --head`; docs/sweep.md) (default: none, Ray on this machine)",
+        help="join a running Ray cluster (`ray start --head`; docs/sweep.md); gives up after 10 s when nothing "
+        "answers at HOST:PORT (default: none, Ray on this machine)",
     )  # fmt: skip
     execution.add_argument(
-        "--cpus-per-run", type=int, default=1, metavar="N",
+        "--cpus-per-run", type=bounded_int(1, MAX_THREADS), default=1, metavar="N",
         help="CPUs each run is declared to Ray, and the size of its thread pools (a demo run keeps about one "
         "core busy: 0.95-1.06 cores measured)",
     )  # fmt: skip
     execution.add_argument(
-        "--workers", type=int, default=None, metavar="N",
+        "--workers", type=bounded_int(1, MAX_THREADS), default=None, metavar="N",
         help="without --address: runs at a time on this machine (default: its cores / --cpus-per-run)",
     )  # fmt: skip
-    execution.add_argument("--retries", type=int, default=2, help="restarts of a run whose worker died")
+    execution.add_argument(
+        "--retries", type=bounded_int(0, MAX_RETRIES), default=2, help="restarts of a run whose worker died"
+    )
     execution.add_argument(
         "--retry-failed", action="store_true", help="run the runs that failed before again"
     )
@@ -90,6 +101,26 @@ def _add_execution(execution: argparse._ArgumentGroup) -> None:
 
 
 def command(args: argparse.Namespace) -> int:
+    import sys
+
+    from hippo_nav.sweep.scheduler import exit_status, signal_name, stop_signals
+
+    # SIGINT, SIGTERM and SIGHUP stop every stage alike, validation and Ray's start included.
+    try:
+        with stop_signals():
+            return _sweep(args)
+    except KeyboardInterrupt as err:  # before any run started (a stop during the runs ends in `_sweep`)
+        name = signal_name(err)
+        print(
+            f"hippo-nav: interrupted ({name}) before any run started; nothing was lost: rerun the same command",
+            file=sys.stderr,
+        )
+        return exit_status(name)
+
+
+def _sweep(args: argparse.Namespace) -> int:
+    import sys
+
     from hippo_nav.sweep import SweepOptions, build_space, run_sweep
     from hippo_nav.sweep.scheduler import describe, dry_run
 
@@ -105,8 +136,10 @@ def command(args: argparse.Namespace) -> int:
         config=args.config, dataset=flags, no_figures=args.no_figures,
     )  # fmt: skip
     out = args.out or space.out or (f"runs/{Path(args.file).stem}" if args.file else "runs/sweep")
-    if args.dry_run:
-        print("\n".join(dry_run(space, out, args.retry_failed)))
+
+    if args.dry_run:  # stdout is the plan; what takes a while is said on stderr
+        tell = lambda line: print(f"hippo-nav: {line}", file=sys.stderr)
+        print("\n".join(dry_run(space, out, args.retry_failed, echo=tell)))
         return 0
     options = SweepOptions(
         address=args.address, cpus_per_run=args.cpus_per_run, workers=args.workers, retries=args.retries,
@@ -114,6 +147,4 @@ def command(args: argparse.Namespace) -> int:
     )  # fmt: skip
     summary = run_sweep(space, out, options)
     print(describe(summary))
-    if summary.interrupted:
-        return 130
-    return 1 if summary.failed else 0
+    return summary.exit_status

@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from hippo_nav.io import read_text
 from hippo_nav.io.atomic import write_text
 
 MANIFEST = "manifest.json"
@@ -54,11 +55,17 @@ def _json_default(value: Any) -> Any:
     raise TypeError(f"{type(value).__name__} is not JSON")
 
 
+MAX_MANIFEST_BYTES = 16 * 2**20
+"""A manifest is a few kB; a bigger file at its name is not one (and is not read)."""
+
+
 def read_manifest(run_dir: Path) -> dict[str, Any] | None:
-    """The manifest of a run folder, or None when there is none (or it cannot be read)."""
+    """The manifest of a run folder, or None when there is none or it is not one: unreadable, too big, not
+    UTF-8, not JSON, nested too deeply for the parser, or not a JSON object. A run without a readable manifest
+    is a run to do (again); the reader never raises for what a file holds."""
     try:
-        data = json.loads((run_dir / MANIFEST).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+        data = json.loads(read_text(run_dir / MANIFEST, "manifest", MAX_MANIFEST_BYTES))
+    except (OSError, ValueError, RecursionError):  # ValueError: DatasetError (size, UTF-8) and JSON errors
         return None
     return data if isinstance(data, dict) else None
 

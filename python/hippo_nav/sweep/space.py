@@ -21,7 +21,14 @@ written into the manifests as absolute paths.
 
 A run's id is a readable slug of its axis values and 8 hex digits of the SHA-256 of everything that makes the
 run (dataset, range, sequence, odometry, lesion, seed, overrides), so the same space always gives the same ids
-and a rerun finds its earlier runs (resume); two runs differing in any value never share an id.
+and a rerun finds its earlier runs (resume); two runs differing in any value never share an id. An override's
+value is taken as the validated config holds it (`1` for a float field is `1.0`), and two runs with the same
+resolved config, dataset, sequence and odometry are one run (two spellings of one setting run once).
+
+Limits, checked before anything is expanded: at most `MAX_RUNS` runs in a sweep (the size of every
+cross-product is computed from the lengths of its axes, a seed range from its ends), a sweep file of at most
+`MAX_SWEEP_FILE_BYTES`, values nested at most `MAX_NESTING` deep. Every problem is a one-line `HippoNavError`
+naming the file, the axis or the key.
 """
 
 from __future__ import annotations
@@ -33,7 +40,7 @@ import json
 import os
 import re
 import sys
-from collections.abc import Iterable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -44,6 +51,18 @@ from hippo_nav.io import read_text
 from hippo_nav.system.config import PipelineConfig, config_from_dict, load_config, resolved_config_dict
 
 MAX_SEED = 2**31 - 1
+"""Seeds reach OpenCV's RNG, which takes a 32-bit signed integer."""
+MAX_RUNS = 10_000
+"""Runs in one sweep at most. Validating a run's config takes about 0.6 ms, so this many take seconds; more
+is most likely a typo (a seed range of 10**12), and a study that big is better split into several sweeps."""
+MAX_FRAME = 10**9
+"""A sweep file's frame numbers and stride at most (as `run`'s flags): more is a typo of extra digits."""
+MAX_SWEEP_FILE_BYTES = 2**20
+"""A sweep file is a few kB; a bigger one is refused before it is read."""
+MAX_NESTING = 32
+"""Lists and tables in a sweep file (or a `--set` value) nested at most this deep (a config is 3 deep)."""
+VALIDATION_NOTICE_RUNS = 2_000
+"""From this many runs on, validating their configs (seconds) is said before it starts."""
 LESION_MODULES = ("ventral", "intermediate", "dorsal")
 AXES = ("set", "seeds", "lesion", "sequence", "odometry")
 """The axes a sweep file or the command line may give."""
@@ -166,13 +185,27 @@ class SweepSpace:
     blocks: list[Block] = field(default_factory=lambda: [Block()])
     out: str | None = None
 
-    def runs(self) -> list[RunSpec]:
-        """Every run, in the order of the blocks and their axes, duplicates (same id) once; every config
-        is validated here, before anything runs."""
+    def size(self) -> int:
+        """How many runs the cross-products make (duplicates counted), from the lengths of the axes alone."""
+        return sum(block.size() for block in self.blocks)
+
+    def runs(self, echo: Callable[[str], None] | None = None) -> list[RunSpec]:
+        """Every run, in the order of the blocks and their axes, each once (the same resolved config,
+        dataset, sequence and odometry: one run, whatever the spelling); every config is validated here,
+        before anything runs. The size is checked before anything is expanded (`MAX_RUNS`); `echo` is told
+        when the validation will take a while."""
+        total = check_size(self.size())
+        if echo is not None and total >= VALIDATION_NOTICE_RUNS:
+            echo(f"validating the configs of {total} runs (about {max(1, round(total * 0.0006))} s)…")
         runs: dict[str, RunSpec] = {}
+        seen: set[str] = set()
+        cache: dict[str, _Validated] = {}
         for block in self.blocks:
-            for spec in _expand(block, self.dataset, self.base_config):
-                runs.setdefault(spec.run_id, spec)
+            for identity, spec in _expand(block, self.dataset, self.base_config, cache):
+                # A set and a dict: duplicates are found by hashing, in time linear in the runs.
+                if identity not in seen:
+                    seen.add(identity)
+                    runs.setdefault(spec.run_id, spec)
         return list(runs.values())
 
     def as_dict(self) -> dict[str, Any]:
@@ -221,11 +254,61 @@ def split_values(text: str) -> list[str]:
 
 
 def parse_value(text: str) -> Any:
-    """A command-line value: JSON where it parses (`true`, `0.4`, `null`, `[0, 10]`, `"x"`), else the text."""
+    """A command-line value: JSON where it parses (`true`, `0.4`, `null`, `[0, 10]`, `"x"`), else the text
+    (also an integer of more digits than Python reads); nested deeper than `MAX_NESTING` is refused."""
     try:
-        return json.loads(text)
-    except json.JSONDecodeError:
+        value = json.loads(text)
+    except RecursionError:
+        raise HippoNavError(
+            f"value {_shown(text)}: nested too deeply (at most {MAX_NESTING} levels of [ ] and {{ }})"
+        ) from None
+    except ValueError:  # not JSON (json.JSONDecodeError), or an integer of over 4 300 digits
         return text
+    check_structure(value, f"value {_shown(text)}")
+    return value
+
+
+def _shown(value: Any, limit: int = 40) -> str:
+    """`value` as a message quotes it: cut to `limit` characters, so a pasted megabyte stays one short line."""
+    try:
+        text = repr(value)
+    except ValueError:  # an integer of over 4 300 digits
+        return "(a number of thousands of digits)"
+    return text if len(text) <= limit else text[:limit] + f"… ({len(text)} characters)"
+
+
+MAX_VALUES = 100_000
+"""Values (every list item and table entry, nested ones too) in a sweep file at most. YAML's aliases can make a
+file of a few lines hold billions of values by reference; counting stops at this many."""
+
+
+def check_structure(value: Any, where: str) -> None:
+    """Refuse values nested deeper than `MAX_NESTING` or holding more than `MAX_VALUES` values, before any
+    recursive code (validation, copying, hashing) meets them. Iterative: it cannot overflow the stack."""
+    stack, count = [(value, 0)], 0
+    while stack:
+        node, depth = stack.pop()
+        count += 1
+        if depth > MAX_NESTING:
+            raise HippoNavError(
+                f"{where}: nested too deeply (at most {MAX_NESTING} levels of lists and tables)"
+            )
+        if count > MAX_VALUES:
+            raise HippoNavError(f"{where}: holds more than {MAX_VALUES} values; a sweep file is a few lines")
+        if isinstance(node, dict):
+            stack.extend((v, depth + 1) for v in node.values())
+        elif isinstance(node, (list, tuple)):
+            stack.extend((v, depth + 1) for v in node)
+
+
+def check_size(total: int) -> int:
+    """`total` runs, or the one-line error of a sweep bigger than `MAX_RUNS` (checked before expanding)."""
+    if total > MAX_RUNS:
+        raise HippoNavError(
+            f"the sweep would make {total} runs; a sweep makes at most {MAX_RUNS}: check the axes for a typo "
+            "(a seed range such as 0-1000000), or split the study into several sweeps"
+        )
+    return total
 
 
 def parse_set(text: str) -> tuple[str, list[Any]]:
@@ -236,29 +319,48 @@ def parse_set(text: str) -> tuple[str, list[Any]]:
         raise HippoNavError(
             f"--set {text}: give KEY=VALUE[,VALUE…], e.g. --set views.novelty_threshold=0.4,0.45"
         )
-    return _checked_key(key, f"--set {text}"), [parse_value(v) for v in split_values(values)]
+    return _checked_key(key, f"--set {text if len(text) <= 80 else _shown(text, 80)}"), [
+        parse_value(v) for v in split_values(values)
+    ]
 
 
 def parse_seeds(spec: str | int | Sequence[Any]) -> list[int]:
-    """`0-4`, `0,3,7`, `0-2,10`, an integer, or a list of integers → the seeds, in order, each once."""
-    if isinstance(spec, bool):
-        raise HippoNavError(f"seeds {spec!r}: give integers, e.g. 0-4 or 0,3,7")
-    items: list[Any] = [spec] if isinstance(spec, int) else list(spec) if not isinstance(spec, str) else []
+    """`0-4`, `0,3,7`, `0-2,10`, an integer, or a list of integers → the seeds, in order, each once. The
+    ranges are checked (each end from 0 to `MAX_SEED`, at most `MAX_RUNS` seeds in all) from their ends,
+    before any is expanded: a typo such as `0-1000000000000` is one line, not gigabytes of seeds."""
+    shown = _shown(spec)
+    if isinstance(spec, bool) or not isinstance(spec, (str, int, list, tuple)):
+        raise HippoNavError(f"seeds {shown}: give integers or ranges, e.g. 0-4 or 0,3,7")
+    ranges: list[tuple[int, int]] = []
     if isinstance(spec, str):
         for part in (p.strip() for p in spec.split(",")):
             lo, dash, hi = part.partition("-")
             try:
-                items += list(range(int(lo), int(hi) + 1)) if dash else [int(part)]
-            except ValueError:
-                raise HippoNavError(f"--seeds {spec}: give integers or ranges, e.g. 0-4 or 0,3,7") from None
-    seeds: list[int] = []
-    for seed in items:
-        if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
-            raise HippoNavError(f"seed {seed!r}: give integers from 0 to {MAX_SEED}")
-        if seed not in seeds:
-            seeds.append(seed)
+                ranges.append((int(lo), int(hi)) if dash else (int(part), int(part)))
+            except ValueError:  # also a number of over 4 300 digits
+                raise HippoNavError(f"seeds {shown}: give integers or ranges, e.g. 0-4 or 0,3,7") from None
+    else:
+        for seed in [spec] if isinstance(spec, int) else spec:
+            if isinstance(seed, bool) or not isinstance(seed, int):
+                raise HippoNavError(f"seed {_shown(seed)}: give integers from 0 to {MAX_SEED}")
+            ranges.append((seed, seed))
+    for first, last in ranges:
+        for end in (first, last):
+            if not 0 <= end <= MAX_SEED:
+                raise HippoNavError(f"seed {_shown(end)}: give integers from 0 to {MAX_SEED}")
+        if last < first:
+            raise HippoNavError(
+                f"seeds {first}-{last}: the range is empty; give the lower seed first ({last}-{first})"
+            )
+    count = sum(last - first + 1 for first, last in ranges)
+    if count > MAX_RUNS:
+        raise HippoNavError(
+            f"seeds {shown}: {count} seeds, and a sweep makes at most {MAX_RUNS} runs; check the range for a typo"
+        )
+    # dict.fromkeys: in order, each once, in time linear in the seeds.
+    seeds = list(dict.fromkeys(itertools.chain.from_iterable(range(a, b + 1) for a, b in ranges)))
     if not seeds:
-        raise HippoNavError(f"seeds {spec!r}: no seed given (e.g. 0-4)")
+        raise HippoNavError(f"seeds {shown}: no seed given (e.g. 0-4)")
     return seeds
 
 
@@ -270,14 +372,16 @@ def lesion_modules(condition: str) -> list[str]:
     unknown = [n for n in names if n not in LESION_MODULES]
     if unknown or not names:
         raise HippoNavError(
-            f"lesion {condition!r}: give none or module names joined by +, from {', '.join(LESION_MODULES)}"
+            f"lesion {_shown(condition)}: give none or module names joined by +, from {', '.join(LESION_MODULES)}"
         )
     return names
 
 
 def _checked_lesion(condition: Any) -> str:
     if not isinstance(condition, str):
-        raise HippoNavError(f"lesion {condition!r}: give a name (none, ventral, intermediate, dorsal, a+b)")
+        raise HippoNavError(
+            f"lesion {_shown(condition)}: give a name (none, ventral, intermediate, dorsal, a+b)"
+        )
     modules = lesion_modules(condition.strip())
     # One spelling per condition, so `dorsal+ventral` and `ventral+dorsal` are the same run.
     return "+".join(m for m in LESION_MODULES if m in modules) or "none"
@@ -290,25 +394,32 @@ def parse_odometry(value: Any, file_format: str | None = None, align: str | None
     if isinstance(value, dict):
         unknown = set(value) - {"file", "format", "align"}
         if unknown or "file" not in value:
-            raise HippoNavError(f"odometry {value}: a table takes file (required), format and align")
+            raise HippoNavError(f"odometry {_shown(value)}: a table takes file (required), format and align")
         file_format, align, value = value.get("format", file_format), value.get("align", align), value["file"]
     if not isinstance(value, str) or not value.strip():
-        raise HippoNavError(f"odometry {value!r}: give vo, drift or a trajectory file")
+        raise HippoNavError(f"odometry {_shown(value)}: give vo, drift or a trajectory file")
     if value in ("vo", "drift"):
         return Odometry(value)
-    if file_format is not None and file_format not in FORMATS:
-        raise HippoNavError(f"odometry {value}: format {file_format!r}; choose from {', '.join(FORMATS)}")
-    if align is not None and align not in ALIGNMENTS:
-        raise HippoNavError(f"odometry {value}: align {align!r}; choose from {', '.join(ALIGNMENTS)}")
-    path = Path(os.path.expandvars(value)).expanduser()
-    if not path.is_file():
-        raise HippoNavError(f"odometry {value}: no such file (give vo, drift or a trajectory file)")
-    return Odometry("file", str(path.resolve()), file_format, align)
+    if file_format is not None and (not isinstance(file_format, str) or file_format not in FORMATS):
+        raise HippoNavError(
+            f"odometry {_shown(value)}: format {_shown(file_format)}; choose from {', '.join(FORMATS)}"
+        )
+    if align is not None and (not isinstance(align, str) or align not in ALIGNMENTS):
+        raise HippoNavError(
+            f"odometry {_shown(value)}: align {_shown(align)}; choose from {', '.join(ALIGNMENTS)}"
+        )
+    path = _absolute(value, f"odometry {_shown(value)}")
+    assert path is not None
+    if not _is(Path(path), "file"):
+        raise HippoNavError(f"odometry {_shown(value)}: no such file (give vo, drift or a trajectory file)")
+    return Odometry("file", path, file_format, align)
 
 
 def _checked_key(key: str, where: str) -> str:
     if not _KEY.match(key):
-        raise HippoNavError(f"{where}: {key!r} is not a dotted config key such as views.novelty_threshold")
+        raise HippoNavError(
+            f"{where}: {_shown(key)} is not a dotted config key such as views.novelty_threshold"
+        )
     if key == "seed":
         raise HippoNavError(
             f"{where}: the seed is its own axis; give --seeds 0-4 (or seeds = [...] in a file)"
@@ -337,7 +448,7 @@ def apply_override(config: dict[str, Any], key: str, value: Any) -> None:
 
 
 def _slug_value(value: Any) -> str:
-    text = value if isinstance(value, str) else json.dumps(value, separators=(",", ""))
+    text = value if isinstance(value, str) else json.dumps(value, separators=(",", ""), default=str)
     return re.sub(r"[^A-Za-z0-9.+-]+", "", text.replace(",", "+").replace(" ", ""))[:24] or "x"
 
 
@@ -359,28 +470,59 @@ def run_id(facts: dict[str, Any]) -> str:
     return f"{slug}-{digest}"
 
 
-def _expand(block: Block, dataset: DatasetInput, base: dict[str, Any]) -> Iterable[RunSpec]:
+@dataclass(frozen=True)
+class _Validated:
+    """A run's config once validated: its values flat (dotted keys, as the config resolves them) and the hash
+    of the resolved config with each lesion condition applied (computed when first asked)."""
+
+    config: PipelineConfig
+    flat: dict[str, Any]
+    hashes: dict[str, str] = field(default_factory=dict)
+
+    def identity_hash(self, lesion: str) -> str:
+        if lesion not in self.hashes:
+            self.hashes[lesion] = config_hash(self.config.with_lesions(*lesion_modules(lesion)))
+        return self.hashes[lesion]
+
+
+def _expand(
+    block: Block, dataset: DatasetInput, base: dict[str, Any], cache: dict[str, _Validated]
+) -> Iterator[tuple[str, RunSpec]]:
+    """(identity, run) for every combination of the block's axes. The identity is the hash of what the run
+    does (dataset, sequence, odometry, resolved config), so two spellings of one setting are one run."""
     keys = sorted(block.overrides)
     seeds: list[int | None] = list(block.seeds) if block.seeds else [None]
+    data = dataset.as_dict()
     for values in itertools.product(
         block.sequences, block.odometries, block.lesions, *(block.overrides[k] for k in keys),
         seeds,
     ):  # fmt: skip
         sequence, odometry, lesion, *chosen, seed = values
-        overrides = dict(zip(keys, chosen, strict=True))
+        given = dict(zip(keys, chosen, strict=True))
         config = copy.deepcopy(base)
-        for key, value in overrides.items():
+        for key, value in given.items():
             apply_override(config, key, value)
         if seed is not None:
             config["seed"] = seed
+        text = json.dumps(config, sort_keys=True, default=str)
+        validated = cache.get(text)
+        if validated is None:
+            described = ", ".join(f"{k}={json.dumps(v, default=str)[:60]}" for k, v in given.items())
+            described += f"{', ' if described else ''}seed {seed}" if seed is not None else ""
+            # The errors of --config, before any run.
+            checked = config_from_dict(config, f"run ({described or 'the base config'})")
+            validated = cache[text] = _Validated(checked, dotted(resolved_config_dict(checked)))
+        # Each value as the validated config holds it (1 for a float field is 1.0): one id per setting.
+        overrides = {k: validated.flat.get(k, v) for k, v in given.items()}
         facts = {
-            "dataset": dataset.as_dict(), "sequence": sequence, "odometry": odometry.as_dict(),
+            "dataset": data, "sequence": sequence, "odometry": odometry.as_dict(),
             "lesion": lesion, "seed": seed, "overrides": overrides,
         }  # fmt: skip
         spec = RunSpec(run_id(facts), dataset, sequence, odometry, lesion, seed, overrides, config)
-        described = ", ".join(f"{k}={json.dumps(v)}" for k, v in overrides.items()) or "the base config"
-        config_from_dict(config, f"run {spec.run_id} ({described})")  # the errors of --config, before any run
-        yield spec
+        identity = json.dumps(
+            [data, sequence, odometry.as_dict(), validated.identity_hash(lesion)], sort_keys=True, default=str
+        )
+        yield identity, spec
 
 
 def config_hash(config: PipelineConfig) -> str:
@@ -396,35 +538,65 @@ def config_hash(config: PipelineConfig) -> str:
 def read_sweep_file(path: str | Path) -> dict[str, Any]:
     """A sweep file's table: TOML (`.toml`) or YAML (`.yaml`, `.yml`)."""
     path = Path(path)
-    try:
-        text = read_text(path, "sweep file")
-    except OSError as err:
-        raise HippoNavError(f"{path}: cannot read the sweep file ({err.strerror})") from None
-    if path.suffix == ".toml":
-        if sys.version_info >= (3, 11):
-            import tomllib
-        else:  # the sweep extra installs tomli on Python 3.10
-            import tomli as tomllib
-        try:
-            data = tomllib.loads(text)
-        except tomllib.TOMLDecodeError as err:
-            raise HippoNavError(f"{path}: not valid TOML ({err})") from None
-    elif path.suffix in (".yaml", ".yml"):
-        import yaml
-
-        try:
-            data = yaml.safe_load(text)
-        except yaml.YAMLError as err:
-            raise HippoNavError(f"{path}: not valid YAML ({str(err).splitlines()[0]})") from None
-    else:
+    if path.suffix not in (".toml", ".yaml", ".yml"):
         raise HippoNavError(f"{path}: a sweep file ends in .toml, .yaml or .yml")
+    try:
+        text = read_text(path, "sweep file", MAX_SWEEP_FILE_BYTES)
+    except HippoNavError:
+        raise  # too big, or not UTF-8: the message names the file
+    except (OSError, ValueError) as err:  # ValueError: a NUL byte in the name
+        raise HippoNavError(f"{path}: cannot read the sweep file ({_os_reason(err)})") from None
+    if path.suffix == ".toml":
+        data = parse_toml(text, path)
+    else:
+        data = parse_yaml(text, path)
+    check_structure(data, str(path))  # first: YAML's aliases can make a few lines hold billions of values
     keys = file_keys()
     if not isinstance(data, dict):
         raise HippoNavError(f"{path}: a sweep file holds one table of keys ({', '.join(sorted(keys))})")
-    unknown = sorted(set(data) - keys)
+    unknown = sorted(_shown(k) if not isinstance(k, str) else k for k in data if k not in keys)
     if unknown:
-        raise HippoNavError(f"{path}: unknown keys {unknown}; a sweep file takes {', '.join(sorted(keys))}")
+        raise HippoNavError(
+            f"{path}: unknown keys {_shown(unknown, 200)}; a sweep file takes {', '.join(sorted(keys))}"
+        )
     return data
+
+
+def parse_toml(text: str, path: Path) -> Any:
+    """The table of a TOML sweep file, or a one-line error naming the file."""
+    if sys.version_info >= (3, 11):
+        import tomllib
+    else:  # the sweep extra installs tomli on Python 3.10
+        import tomli as tomllib
+    try:
+        return tomllib.loads(text)
+    except RecursionError:
+        raise HippoNavError(f"{path}: nested too deeply (at most {MAX_NESTING} levels)") from None
+    except ValueError as err:  # TOMLDecodeError, or a number Python cannot read
+        raise HippoNavError(f"{path}: not valid TOML ({' '.join(str(err).split())[:200]})") from None
+
+
+def parse_yaml(text: str, path: Path) -> Any:
+    """The mapping of a YAML sweep file, or a one-line error naming the file."""
+    import yaml
+
+    try:
+        return yaml.safe_load(text)
+    except RecursionError:
+        raise HippoNavError(f"{path}: nested too deeply (at most {MAX_NESTING} levels)") from None
+    except yaml.YAMLError as err:
+        raise HippoNavError(f"{path}: not valid YAML ({str(err).splitlines()[0]})") from None
+    except (ValueError, TypeError, OverflowError) as err:  # a date or number the constructors cannot make
+        raise HippoNavError(
+            f"{path}: not valid YAML ({type(err).__name__}: {_shown(str(err), 200)})"
+        ) from None
+
+
+def _os_reason(err: BaseException) -> str:
+    """What failed, in words (an `OSError`'s text without its `[Errno N]` and repeated file name)."""
+    if isinstance(err, OSError):
+        return (err.strerror or type(err).__name__).lower()
+    return str(err)
 
 
 def _as_list(value: Any) -> list[Any]:
@@ -432,31 +604,50 @@ def _as_list(value: Any) -> list[Any]:
 
 
 def _block_from(table: dict[str, Any], where: str, defaults: Block, odometry_flags: dict[str, Any]) -> Block:
-    unknown = sorted(set(table) - set(AXES))
+    unknown = sorted(str(k) for k in table if k not in AXES)
     if unknown:
-        raise HippoNavError(f"{where}: unknown axes {unknown}; choose from {', '.join(AXES)}")
+        raise HippoNavError(f"{where}: unknown axes {_shown(unknown, 200)}; choose from {', '.join(AXES)}")
+    # An axis with no values would make a sweep of no runs: refused, naming the axis.
+    for axis in AXES:
+        if axis in table and table[axis] in ([], "", {}):
+            raise HippoNavError(
+                f"{where}: the {axis} axis has no values; give at least one (or leave it out)"
+            )
     overrides = dict(defaults.overrides)
     if "set" in table:
         if not isinstance(table["set"], dict):
             raise HippoNavError(f'{where}: set is a table of "key" = [values]')
         for key, values in dotted(table["set"]).items():
-            overrides[_checked_key(key, f"{where}, set")] = _as_list(values)
+            checked = _checked_key(str(key), f"{where}, set")
+            if values == [] or values == {}:
+                raise HippoNavError(
+                    f"{where}: set {checked} has no values; give at least one (or leave it out)"
+                )
+            overrides[checked] = _as_list(values)
     seeds = parse_seeds(table["seeds"]) if "seeds" in table else defaults.seeds
     lesions = (
-        [_checked_lesion(v) for v in _as_list(table["lesion"])] if "lesion" in table else defaults.lesions
+        list(dict.fromkeys(_checked_lesion(v) for v in _as_list(table["lesion"])))
+        if "lesion" in table
+        else defaults.lesions
     )
     sequences: list[str | None] = (
-        [str(v) for v in _as_list(table["sequence"])] if "sequence" in table else defaults.sequences
+        list(dict.fromkeys(_checked_sequence(v) for v in _as_list(table["sequence"])))
+        if "sequence" in table
+        else defaults.sequences
     )
     odometries = (
-        [parse_odometry(v, **odometry_flags) for v in _as_list(table["odometry"])]
+        list(dict.fromkeys(parse_odometry(v, **odometry_flags) for v in _as_list(table["odometry"])))
         if "odometry" in table
         else defaults.odometries
     )
-    for axis, values in (("lesion", lesions), ("sequence", sequences), ("odometry", odometries)):
-        if not values:
-            raise HippoNavError(f"{where}: the {axis} axis has no values")
     return Block(overrides, seeds, lesions, sequences, odometries)
+
+
+def _checked_sequence(value: Any) -> str:
+    """A sequence name: text (or a number, as YAML reads `05`… as 5: give it quoted) that is not blank."""
+    if isinstance(value, bool) or not isinstance(value, (str, int)) or not str(value).strip():
+        raise HippoNavError(f'sequence {_shown(value)}: give a sequence name, e.g. 00 or "05"')
+    return str(value).strip()
 
 
 def build_space(
@@ -486,11 +677,18 @@ def build_space(
         raise HippoNavError(
             "the sequence axis needs a dataset (--dataset PATH); without one the demo loop runs"
         )
-    base_file = _absolute(config if config is not None else data.get("config_file"))
+    base_file = _absolute(config if config is not None else data.get("config_file"), "config_file")
     base: dict[str, Any] = {}
     if base_file is not None:
-        load_config(base_file)  # the errors of `run --config`
-        base = json.loads(read_text(base_file, "config file"))
+        try:
+            load_config(base_file)  # the errors of `run --config`
+        except RecursionError:
+            raise HippoNavError(f"{base_file}: nested too deeply (at most {MAX_NESTING} levels)") from None
+        try:
+            base = json.loads(read_text(base_file, "config file"))
+        except (OSError, RecursionError) as err:
+            raise HippoNavError(f"{base_file}: cannot read the config file ({_os_reason(err)})") from None
+        check_structure(base, base_file)
     inline = data.get("config")
     if inline is not None:
         if not isinstance(inline, dict):
@@ -522,7 +720,11 @@ def build_space(
         block = _block_from(table, where, top, odometry_flags)
         blocks.append(_block_from(command_line, "command line", block, odometry_flags))
     out = data.get("out")
-    return SweepSpace(dataset_input, base, base_file, blocks, None if out is None else str(out))
+    if out is not None and (not isinstance(out, str) or not out.strip()):
+        raise HippoNavError(f"{file}: out {_shown(out)}: give the sweep folder's path as text")
+    space = SweepSpace(dataset_input, base, base_file, blocks, out)
+    check_size(space.size())  # from the axes' lengths, before a single run is expanded
+    return space
 
 
 def _space_tables(data: dict[str, Any]) -> list[dict[str, Any]]:
@@ -542,31 +744,60 @@ def _merged(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def _absolute(path: Any) -> str | None:
-    return None if path is None else str(Path(os.path.expandvars(str(path))).expanduser().resolve())
+def _absolute(path: Any, what: str = "path") -> str | None:
+    """A path from the command line or a sweep file as an absolute path (`$VARS` and `~` expanded), or a
+    one-line error naming `what` (a path that is not text, holds a NUL byte or loops through links)."""
+    if path is None:
+        return None
+    if not isinstance(path, str) or not path.strip() or "\0" in path:
+        raise HippoNavError(f"{what} {_shown(path)}: give a file or folder path as text")
+    try:
+        return str(Path(os.path.expandvars(path)).expanduser().resolve())
+    except (OSError, RuntimeError) as err:  # RuntimeError: a loop of symbolic links
+        raise HippoNavError(f"{what} {_shown(path)}: cannot resolve the path ({_os_reason(err)})") from None
+
+
+def _is(path: Path, kind: str) -> bool:
+    """Whether `path` is an existing file ("file") or anything ("any"); False where it cannot be looked at
+    (a name too long, no permission), as for a missing one."""
+    try:
+        return path.is_file() if kind == "file" else path.exists()
+    except (OSError, ValueError):
+        return False
+
+
+FRAME_BOUNDS = {"start": (0, MAX_FRAME - 1), "stop": (1, MAX_FRAME), "stride": (1, MAX_FRAME)}
+"""The range of each frame flag (as `run --start/--stop/--stride`)."""
 
 
 def _dataset_input(flags: dict[str, Any]) -> DatasetInput:
     from hippo_nav.datasets import LOADERS
 
-    path = _absolute(flags.get("dataset"))
-    if path is not None and not Path(path).exists():
-        raise HippoNavError(f"dataset {flags['dataset']}: no such file or folder")
+    path = _absolute(flags.get("dataset"), "dataset")
+    if path is not None and not _is(Path(path), "any"):
+        raise HippoNavError(f"dataset {_shown(flags['dataset'])}: no such file or folder")
     kind = flags.get("dataset_kind")
-    if kind is not None and kind not in LOADERS:
-        raise HippoNavError(f"dataset_kind {kind!r}: choose from {', '.join(LOADERS)}")
-    options = {k: str(flags[k]) for k in loader_option_keys() if flags.get(k) is not None}
+    if kind is not None and (not isinstance(kind, str) or kind not in LOADERS):
+        raise HippoNavError(f"dataset_kind {_shown(kind)}: choose from {', '.join(LOADERS)}")
+    options = {}
+    for key in loader_option_keys():
+        value = flags.get(key)
+        if value is None:
+            continue
+        if not isinstance(value, (str, int, float)) or isinstance(value, bool):
+            raise HippoNavError(f"{key} {_shown(value)}: give it as text, as on the command line")
+        options[key] = str(value)
     if "topics" in options:
-        options["topics"] = str(_absolute(options["topics"]))
+        options["topics"] = str(_absolute(options["topics"], "topics"))
     if path is None and (kind is not None or options):
         raise HippoNavError("dataset_kind and loader options need a dataset (--dataset PATH)")
     numbers = {}
-    for name in ("start", "stop", "stride"):
+    for name, (lo, hi) in FRAME_BOUNDS.items():
         value = flags.get(name)
-        if value is not None and (isinstance(value, bool) or not isinstance(value, int)):
-            raise HippoNavError(f"{name} {value!r}: give an integer frame number")
+        if value is not None and (
+            isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi
+        ):
+            raise HippoNavError(f"{name} {_shown(value)}: give an integer frame number from {lo} to {hi}")
         numbers[name] = value
     stride = numbers["stride"] if numbers["stride"] is not None else 1
-    if stride < 1:
-        raise HippoNavError(f"stride {stride}: give 1 or more")
     return DatasetInput(path, kind, numbers["start"], numbers["stop"], stride, tuple(sorted(options.items())))

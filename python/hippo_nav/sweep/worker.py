@@ -9,6 +9,10 @@ the kernel's OOM killer) comes from Ray: the worker process dies, Ray starts ano
 Where it writes: into `SWEEP/runs/<id>/` directly when this process sees the sweep folder (same machine, or
 a file system the cluster shares; checked by reading the session token the driver wrote there), else into a
 scratch folder whose files go back to the driver with the result, and the driver writes them.
+
+Every file it writes goes through `hippo_nav.io.atomic` (the manifest, the results) or is opened without
+following a link (`open_lock`: the run's log, the results mark, the demo cache's lock), so a link planted in a
+sweep folder is never written through; a run folder that is itself a link is refused.
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ import numpy as np
 
 from hippo_nav._core import HippoNavError
 from hippo_nav.io import DatasetError
+from hippo_nav.io.atomic import open_lock
 from hippo_nav.pipeline.results import RESULTS_MARK
 from hippo_nav.sweep.manifest import (
     MANIFEST,
@@ -53,19 +58,21 @@ _SIGNAL_EXIT = {"SIGINT": 130, "SIGHUP": 129, "SIGTERM": 143}
 
 
 class StopFlag:
-    """The sweep's stop request, as a Ray actor the driver sets on Ctrl-C and every run polls (`StopWhenAsked`).
+    """The sweep's stop request, as a Ray actor the driver sets on a stop signal and every run polls
+    (`StopWhenAsked`); it holds the signal's name, which each run records.
 
     Ray's own `ray.cancel` raises KeyboardInterrupt in a running task too, but a task that catches it and
     returns (as a run does, to write the frames it processed) can trip a fatal check in the driver of Ray 2.60
     (`task_manager.cc`, "An unexpected system state has occurred"), so a sweep never cancels a running run."""
 
     def __init__(self) -> None:
-        self.stop = False
+        self.stop: str | None = None
 
-    def set(self) -> None:
-        self.stop = True
+    def set(self, signame: str = "SIGINT") -> None:
+        self.stop = self.stop or signame
 
-    def is_set(self) -> bool:
+    def is_set(self) -> str | None:
+        """The name of the signal that stopped the sweep, or None while it runs."""
         return self.stop
 
 
@@ -79,6 +86,7 @@ class StopWhenAsked:
     def __init__(self, flag: Any) -> None:
         self.flag = flag
         self._asked = time.monotonic()
+        self.signal: str | None = None  # the signal that stopped the sweep, once asked to stop
 
     def on_frame(self, event: Any) -> None:
         if time.monotonic() - self._asked < self.POLL_S:
@@ -86,7 +94,9 @@ class StopWhenAsked:
         import ray
 
         self._asked = time.monotonic()
-        if ray.get(self.flag.is_set.remote()):
+        asked = ray.get(self.flag.is_set.remote())
+        if asked:
+            self.signal = asked if isinstance(asked, str) else "SIGINT"
             raise KeyboardInterrupt
 
     def on_finish(self, result: Any) -> None:
@@ -105,15 +115,20 @@ def execute_run(spec: RunSpec, sweep_dir: str, session: str, cpus: int, stop: An
     clock = time.perf_counter()
     shared = _sees(Path(sweep_dir), session)
     dest = Path(sweep_dir) / RUNS_DIR / spec.run_id if shared else Path(tempfile.mkdtemp(prefix="hippo_nav_"))
+    for folder in (dest.parent, dest):
+        if folder.is_symlink():  # the driver refuses these too; a link made since is refused here
+            raise HippoNavError(f"{folder} is a symbolic link; a sweep writes only into folders of its own")
     dest.mkdir(parents=True, exist_ok=True)
     previous = read_manifest(dest)
     retried = previous is not None and previous.get("sweep_session") == session
     retried = retried and previous is not None and previous.get("status") == "running"
+    attempt = previous.get("attempt") if retried and previous is not None else None
     manifest: dict[str, Any] = {
         "manifest_version": MANIFEST_VERSION,
         "run_id": spec.run_id,
         "sweep_session": session,
-        "attempt": int(previous.get("attempt", 1)) + 1 if retried and previous is not None else 1,
+        # A number read back from a file: anything but a sane count starts again at 1.
+        "attempt": attempt + 1 if type(attempt) is int and 0 < attempt < 1000 else 1,
         "status": "running",
         "exit_status": None,
         "error": None,
@@ -135,10 +150,12 @@ def execute_run(spec: RunSpec, sweep_dir: str, session: str, cpus: int, stop: An
         "peak_rss_mb": None,
     }
     # A results folder made by a sweep is marked as one, so the run may replace an interrupted attempt's files.
-    (dest / RESULTS_MARK).touch()
+    _plain(dest / RESULTS_MARK)
+    open_lock(dest / RESULTS_MARK).close()
     write_json_atomic(dest / MANIFEST, manifest)
+    stopper = None if stop is None else StopWhenAsked(stop)
     with _run_log(dest / RUN_LOG):
-        _run(spec, dest, manifest, [] if stop is None else [StopWhenAsked(stop)])
+        _run(spec, dest, manifest, [] if stopper is None else [stopper], stopper)
     manifest["ended_utc"] = utc_now()
     manifest["wall_s"] = time.perf_counter() - clock
     manifest["peak_rss_mb"] = memory.peak_mb()
@@ -152,8 +169,15 @@ def execute_run(spec: RunSpec, sweep_dir: str, session: str, cpus: int, stop: An
     return outcome
 
 
-def _run(spec: RunSpec, dest: Path, manifest: dict[str, Any], observers: list[Any]) -> None:
-    """The run itself; its outcome goes into `manifest` (status, exit status, error, config, checksum)."""
+def _run(
+    spec: RunSpec,
+    dest: Path,
+    manifest: dict[str, Any],
+    observers: list[Any],
+    stopper: StopWhenAsked | None = None,
+) -> None:
+    """The run itself; its outcome goes into `manifest` (status, exit status, error, config, checksum). An
+    interrupted run records the signal that stopped the sweep (`stopper`), else the one the run caught."""
     from hippo_nav.pipeline import run
     from hippo_nav.system.config import resolved_config_dict
 
@@ -172,15 +196,18 @@ def _run(spec: RunSpec, dest: Path, manifest: dict[str, Any], observers: list[An
         )  # fmt: skip
         manifest["dataset"]["checksum"] = dataset_checksum(result)
         if result.interrupted:
-            by = result.metrics.get("interrupted_by", "SIGINT")
+            by = _stopped_by(stopper, result.metrics.get("interrupted_by"))
             manifest.update(
                 status="interrupted", exit_status=_SIGNAL_EXIT.get(by, 130), error=f"interrupted ({by})"
             )
         else:
             manifest.update(status="done", exit_status=0)
     except KeyboardInterrupt:  # stopped before the first frame or while writing: the results are not whole
+        by = _stopped_by(stopper, None)
         manifest.update(
-            status="interrupted", exit_status=130, error="interrupted before its results were written"
+            status="interrupted",
+            exit_status=_SIGNAL_EXIT.get(by, 130),
+            error=f"interrupted ({by}) before its results were written",
         )
     except (HippoNavError, DatasetError, OSError) as err:
         # Bad input, as `hippo-nav run` exits 2 on it; a dataset that breaks mid-run keeps the frames before.
@@ -192,6 +219,20 @@ def _run(spec: RunSpec, dest: Path, manifest: dict[str, Any], observers: list[An
     except Exception as err:  # noqa: BLE001 - one run's bug must not cost the sweep; kept with its traceback
         manifest.update(status="failed", exit_status=1, error=f"{type(err).__name__}: {_one_line(err)}")
         log.error("run failed:\n%s", traceback.format_exc())
+
+
+def _plain(path: Path) -> None:
+    """Remove a link planted at `path` (the link itself, never what it points to): the file is made anew."""
+    if path.is_symlink():
+        path.unlink()
+
+
+def _stopped_by(stopper: StopWhenAsked | None, caught: Any) -> str:
+    """The signal a run was stopped by: the sweep's (its driver's signal, passed on by the `StopFlag`) or the
+    one this process caught; SIGINT when neither is known."""
+    if stopper is not None and stopper.signal:
+        return stopper.signal
+    return caught if isinstance(caught, str) and caught in _SIGNAL_EXIT else "SIGINT"
 
 
 def odometry_of(choice: Odometry) -> Any:
@@ -242,8 +283,12 @@ def _limit_opencv_threads(cpus: int) -> None:
 
 @contextlib.contextmanager
 def _run_log(path: Path) -> Iterator[None]:
-    """The run's log lines (hippo_nav's warnings: VO failures, clamped motion, errors) into `run.log`."""
-    handler = logging.FileHandler(path, mode="w", encoding="utf-8")
+    """The run's log lines (hippo_nav's warnings: VO failures, clamped motion, errors) into `run.log`, opened
+    without following a link at its name (`open_lock`), emptied, and readable while the run goes on."""
+    _plain(path)
+    stream = open_lock(path)
+    stream.truncate(0)
+    handler = logging.StreamHandler(stream)
     handler.setFormatter(logging.Formatter("%(asctime)s %(levelname)s %(name)s: %(message)s"))
     root = logging.getLogger("hippo_nav")
     level = root.level
@@ -256,6 +301,7 @@ def _run_log(path: Path) -> Iterator[None]:
         root.removeHandler(handler)
         root.setLevel(level)
         handler.close()
+        stream.close()
 
 
 @functools.cache
@@ -267,7 +313,7 @@ def _demo_rendered() -> None:
 
     cache = default_cache_dir()
     cache.mkdir(parents=True, exist_ok=True)
-    with open(cache / "demo_kitti.lock", "a", encoding="utf-8") as lock:
+    with open_lock(cache / "demo_kitti.lock") as lock:
         fcntl.flock(lock.fileno(), fcntl.LOCK_EX)
         try:
             demo_sequence()
