@@ -3,7 +3,8 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.deps-installed
 
-.PHONY: help setup develop demo test test-rust test-python bench bench-gtsam lint
+.PHONY: help setup runtime develop demo test test-all test-rust test-python test-python-all bench bench-gtsam lint
+.PHONY: wheel wheel-check
 
 help: ## list targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | sed 's/:.*## /\t/'
@@ -15,19 +16,33 @@ $(STAMP): pyproject.toml
 
 setup: $(STAMP) ## create .venv and install build tools
 
+runtime: setup ## build the Rust engine (release) and install hippo_nav with its runtime dependencies only
+	$(VENV)/bin/maturin develop --release --quiet
+
 develop: setup ## build the Rust engine (release) and install hippo_nav with its test extras into .venv
 	$(VENV)/bin/maturin develop --release --quiet --extras test
 
-demo: develop ## the main job: run hippo-nav on the built-in synthetic demo sequence
+# The demo needs only the runtime dependencies: the test and lint extras (Ray, evo, Rerun, mypy, …) are
+# minutes of downloads a first run does not use. A .venv that has them keeps them.
+demo: runtime ## the main job: run hippo-nav on the built-in synthetic demo sequence
 	$(VENV)/bin/hippo-nav run --out runs/demo --overwrite
 
 test-rust: ## Rust core tests
 	cargo test --workspace
 
-test-python: develop ## Python tests (benchmarks skipped)
+# The fast selection: every area, without the tests marked slow (whole sequences, Ray clusters, the
+# long-run equivalences; `pytest --markers` and docs/testing.md say which and why), each test stopped
+# after PYTEST_FAST_TIMEOUT_S.
+PYTEST_FAST_TIMEOUT_S ?= 120
+test-python: develop ## Python tests, the fast selection (not slow; a per-test time limit)
+	$(PY) -m pytest -m "not slow" --timeout=$(PYTEST_FAST_TIMEOUT_S)
+
+test-python-all: develop ## every Python test, slow ones included (benchmarks skipped)
 	$(PY) -m pytest
 
-test: test-rust test-python ## the whole test suite (what CI runs)
+test: test-rust test-python ## the fast test suite: Rust core + the fast Python selection (minutes)
+
+test-all: test-rust test-python-all ## the whole test suite, slow tests included (what CI runs)
 
 bench: develop ## criterion and pytest-benchmark benchmarks
 	cargo bench --workspace
@@ -46,3 +61,17 @@ lint: develop ## formatting, lints, type checks and the stub check (CI runs it b
 	$(VENV)/bin/ruff format --check python tests
 	$(PY) -m mypy
 	$(PY) -m mypy.stubtest hippo_nav._core
+
+# One wheel for CPython 3.10 and later (pyo3's abi3-py310). It is linked with zig (ziglang, from PyPI) against
+# glibc 2.28, so it installs on any manylinux_2_28 Linux (RHEL 8, Debian 10, Ubuntu 20.04 and later), not
+# only on one as new as the build machine's; maturin refuses the tag if a symbol needs a newer glibc.
+# Cargo builds it in target/x86_64-unknown-linux-gnu, beside `make develop`'s target/release.
+wheel: setup ## build an abi3 wheel and an sdist into dist/ (maturin build --release)
+	$(PY) -m pip install --quiet "ziglang==0.17.1"
+	rm -f dist/hippo_nav-*.whl dist/hippo_nav-*.tar.gz
+	PATH="$(abspath $(VENV))/bin:$$PATH" $(VENV)/bin/maturin build --release --zig \
+		--compatibility manylinux_2_28 --out dist
+	$(VENV)/bin/maturin sdist --out dist
+
+wheel-check: ## install dist/'s wheel into a fresh venv (no Rust on PATH); run the CLI, the demo, a README example
+	.ci/wheel-check

@@ -64,6 +64,7 @@ def test_without_closures_the_map_writes_back_its_odometry_in_3d(street, tmp_pat
     np.testing.assert_allclose(neural[:, 1, :3], vo[:, 1, :3], atol=1e-9)  # the camera's y axis: tilt
 
 
+@pytest.mark.slow
 def test_a_drifting_odometry_on_a_loop_is_corrected_to_less_than_half_its_error(demo, tmp_path):
     # The demo drives 1.4 laps of a 190 m loop; the odometry drifts 3 % in scale and 0.15° per frame.
     truth = demo.ground_truth()
@@ -78,6 +79,7 @@ def test_a_drifting_odometry_on_a_loop_is_corrected_to_less_than_half_its_error(
     assert errors["corrected"]["ate_3d_m"] < 0.5 * errors["vo"]["ate_3d_m"]
 
 
+@pytest.mark.slow
 def test_a_revisit_the_view_cells_miss_is_closed_by_proximity(demo, tmp_path):
     # The demo loop with view cells that never recognise an older place (a revisit whose look changed too
     # much, as at the `strong` appearance level): only the proximity measurement (the vertex nearest to
@@ -118,6 +120,7 @@ def _moved_3m_forward_at(bar_of):
     return wrong
 
 
+@pytest.mark.slow
 def test_a_wrong_proximity_measurement_is_refused_when_its_neighbour_disagrees(demo, tmp_path, monkeypatch):
     # A wrong PnP pose that still fits the loop gate (on the 00 render at `strong` one was 3.5 m off, inside
     # its own covariance's χ² gate by far): every measurement at the proximity bar is moved 3 m forward, as
@@ -140,6 +143,7 @@ def test_a_wrong_proximity_measurement_is_refused_when_its_neighbour_disagrees(d
     assert notes.get("proximity_disagrees", 0) >= 2, notes
 
 
+@pytest.mark.slow
 def test_proximity_reaches_a_revisit_the_odometry_put_far_off(demo, tmp_path):
     # An odometry 2 % long that turns 0.1° a frame puts the demo's second lap 2-9 m from the first, beyond
     # the proximity radius (1 m here), so only the ring that grows with the travel since the last closure
@@ -169,6 +173,7 @@ def _view_cells_only(confirmed_bar: int, **closure) -> dict:
     )
 
 
+@pytest.mark.slow
 def test_a_familiar_view_below_the_bar_closes_when_a_neighbour_confirms_it(demo, tmp_path):
     # Another sun or lane leaves a true revisit fewer inliers than the view cells' bar (docs/views.md): the
     # measurement is still proposed when a neighbour of its vertex, measured from the same frame, confirms it.
@@ -187,6 +192,7 @@ def test_a_familiar_view_below_the_bar_closes_when_a_neighbour_confirms_it(demo,
     assert errors["corrected"]["ate_2d_m"] < 0.5 * errors["vo"]["ate_2d_m"], errors
 
 
+@pytest.mark.slow
 def test_a_wrong_familiar_view_measurement_below_the_bar_is_refused(demo, tmp_path, monkeypatch):
     # Every first measurement of a familiar view's candidate is moved 3 m forward, as a wrong PnP pose from
     # few matches would be; the confirming neighbour's measurement (its own measurer) stays true, disagrees,
@@ -202,6 +208,7 @@ def test_a_wrong_familiar_view_measurement_below_the_bar_is_refused(demo, tmp_pa
     assert notes.get("view_cell_disagrees", 0) >= 2, notes
 
 
+@pytest.mark.slow
 def test_proximity_is_not_tried_beyond_its_radius(demo, tmp_path):
     # Where the odometry puts no gated vertex within `closure.proximity.radius_m` (and the ring beyond it is
     # off: `radius_per_m` 0), nothing is measured (the cost
@@ -266,6 +273,7 @@ def test_a_closure_measures_a_known_offset(descriptor, size):
     assert LoopMeasurer(Calibration, config).measure(keyframe(key_pose), keyframe(elsewhere))[0] is None
 
 
+@pytest.mark.slow
 def test_a_look_alike_place_elsewhere_is_refused(street, tmp_path):
     """The camera drives the street for 90 m, then sees the street's first 30 m again while its odometry
     says it went on straight, 90–120 m from the start: views and stereo geometry would agree on a closure,

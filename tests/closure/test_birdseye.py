@@ -161,6 +161,7 @@ def test_a_submap_with_too_few_points_never_proposes(structure):
     assert register(empty, empty, cfg) == (None, "birdseye_few_points")
 
 
+@pytest.mark.slow
 def test_the_pipeline_closes_the_reverse_revisit(out_and_back, tmp_path):
     # A drifting odometry (1 % long, turning left), replayed: the map must close the way back onto the way
     # out from structure alone (no view is familiar the other way round) and pull the end back to the start.

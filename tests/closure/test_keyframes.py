@@ -98,6 +98,7 @@ def _strong_revisit_measurements(descriptor: str) -> list[tuple[float, float] | 
     return out
 
 
+@pytest.mark.slow
 def test_the_default_sift_keyframes_measure_revisits_under_strong_change_that_orb_misses() -> None:
     # Measured once: SIFT 24 of 24 (errors ≤ 0.3 m, 0.8°), ORB 9 of 24. ORB's corners survive the change of
     # light, but their descriptors do not: the Hamming distance between a corner and itself on the other pass

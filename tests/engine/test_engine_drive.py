@@ -26,6 +26,7 @@ def test_planar_odometry_recovers_a_loop():
         planar_track(poses[:1])
 
 
+@pytest.mark.slow
 def test_network_integrates_the_kitti_00_ground_truth_shape(shared_data):
     from hippo_nav.io import read_kitti_poses
 

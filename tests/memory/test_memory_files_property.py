@@ -134,7 +134,7 @@ MANIFEST_PATHS = [
 ]  # fmt: skip
 
 
-@settings(max_examples=80, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(where=st.sampled_from(MANIFEST_PATHS), value=JSON_VALUES)
 def test_any_malformed_manifest_field_is_one_error_or_harmless(saved, demo, where, value):
     bad = _copy(saved)

@@ -64,6 +64,7 @@ def test_events_are_frozen_data_and_read_the_networks_only_when_asked(demo, monk
     assert last.network.place.shape == (64, 64)
 
 
+@pytest.mark.slow
 def test_a_map_event_read_after_the_final_correction_is_refused(demo):
     """After a loop the final correction moves the vertices: the last frame's map is no longer there."""
     keeper = Keeper(read=set())

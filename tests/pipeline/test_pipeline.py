@@ -214,6 +214,7 @@ def test_synthetic_kitti_loop_is_closed_and_correction_beats_the_vo(kitti_loop, 
     assert errors["corrected"]["ate_3d_m"] < 0.5 * errors["vo"]["ate_3d_m"]
 
 
+@pytest.mark.slow
 @pytest.mark.data
 def test_real_kitti_frames_run_and_write_metrics_and_figures(shared_data, tmp_path):
     data = KittiOdometry(shared_data / "kitti_odometry", "06")

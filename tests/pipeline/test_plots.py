@@ -205,6 +205,7 @@ def test_rate_maps_show_every_network_with_colour_bars_and_the_modules_field_cou
         assert f"{fields} field" in ax.get_title()
 
 
+@pytest.mark.slow
 def test_run_figures_are_written_as_non_trivial_images(street_run, tmp_path):
     paths = write_run_figures(street_run, tmp_path, rate_map_bin_m=4.0, torus_period_m=PERIOD_M)
     n = len(street_run.record)

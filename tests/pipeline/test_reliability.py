@@ -21,7 +21,8 @@ from hippo_nav.engine import EngineConfig, SpatialMemory, ViewPatterns
 from hippo_nav.io import DatasetError
 from hippo_nav.pipeline import Pipeline, config_from_dict
 from hippo_nav.pipeline.frontend import VO_AHEAD
-from hippo_nav.synthetic import DEMO_SEQUENCE, demo_sequence
+from hippo_nav.synthetic import DEMO_SEQUENCE, demo_sequence, loop_trajectory
+from hippo_nav.synthetic.render import render_cached
 from hippo_nav.vo import ReplayOdometry, StereoOdometry
 
 
@@ -238,12 +239,15 @@ def test_textureless_sequences_are_reported(demo, tmp_path, caplog):
     assert any("too little usable texture" in r.message for r in caplog.records)
 
 
-def test_a_corrupt_demo_cache_file_is_rendered_again(tmp_path):
-    root = demo_sequence(tmp_path / "cache")
+def test_a_corrupt_file_in_a_render_cache_is_rendered_again(tmp_path):
+    """The demo's cache (`render_cached`, under `demo_sequence`) renders a truncated image again; shown on a
+    small render, as the demo's 200 frames would cost the test half a minute for the same check."""
+    poses = loop_trajectory(12)
+    root = render_cached(poses, tmp_path / "cache", DEMO_SEQUENCE, image_size_px=(64, 24))
     victim = root / "sequences" / DEMO_SEQUENCE / "image_0" / "000007.png"
     victim.write_bytes(victim.read_bytes()[:100])  # truncated
     assert cv2.imread(str(victim)) is None
-    demo_sequence(tmp_path / "cache")
+    render_cached(poses, tmp_path / "cache", DEMO_SEQUENCE, image_size_px=(64, 24))
     assert cv2.imread(str(victim)) is not None
 
 

@@ -255,6 +255,7 @@ print("ok")
 """
 
 
+@pytest.mark.slow
 def test_names_that_are_not_utf8_work_everywhere(tmp_path):
     """OpenCV crashed (exit 139, nothing written) on an image folder or a video path that is not UTF-8."""
     done = subprocess.run(

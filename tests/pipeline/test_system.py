@@ -91,6 +91,7 @@ def test_a_view_descriptor_plugs_in_by_a_class_and_a_config_choice(demo, monkeyp
     np.testing.assert_array_equal(result.corrected_world_from_camera, reference.corrected_world_from_camera)
 
 
+@pytest.mark.slow
 def test_a_closure_proposer_plugs_in_and_the_map_only_closes_what_is_proposed(demo, monkeypatch):
     made: list[SilentProposer] = []
 

@@ -22,6 +22,7 @@ def runs(demo):
     return out
 
 
+@pytest.mark.slow
 def test_word_cells_close_the_demo_loop_with_only_true_closures(runs):
     metrics = runs["measured"].metrics
     quality = metrics["closure_quality"]
@@ -32,6 +33,7 @@ def test_word_cells_close_the_demo_loop_with_only_true_closures(runs):
     assert errors["corrected"]["ate_2d_m"] < errors["vo"]["ate_2d_m"]
 
 
+@pytest.mark.slow
 def test_a_recalled_state_is_placed_where_the_measurement_puts_the_agent(runs):
     """Word cells recognise a place 5–10 m before it: recalled as stored, the place code jumps that far
     ahead (measured: neural ATE 2.7 m); placed by the measured closure it stays with the agent (0.34 m;

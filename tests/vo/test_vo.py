@@ -218,6 +218,7 @@ def _right_shifted(frame: StereoFrame, shift_px: float) -> StereoFrame:
     return dataclasses.replace(frame, right=moved)
 
 
+@pytest.mark.slow
 def test_a_shifted_right_image_is_reported_and_the_disparity_offset_corrects_it(demo, caplog):
     """A right image shifted by a pixel against its calibration (what KITTI 01's shared frames show)
     makes depths wrong in a way no rigid step explains: with the self-calibration off (tests/vo/

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -19,6 +21,7 @@ from hippo_nav.cli.common import (
 )
 
 if TYPE_CHECKING:
+    from hippo_nav._core import HippoNavError
     from hippo_nav.pipeline import RunResult
     from hippo_nav.viewer.rerun import RerunObserver
     from hippo_nav.viewer.video import VideoObserver
@@ -102,6 +105,13 @@ def _add_output(output: argparse._ArgumentGroup) -> None:
     )
     output.add_argument("--no-figures", action="store_true", help="skip the figures")
     output.add_argument("--no-progress", action="store_true", help="no progress bar")
+    output.add_argument(
+        "--json",
+        action="store_true",
+        help="print one JSON object on stdout at the end and nothing else there: the results folder, the "
+        "headline metrics, the errors per trajectory, exit_reason and exit_code (bad input too: "
+        '{"exit_code": 2, "exit_reason": "error", "error": …}); every other line goes to stderr',
+    )
 
 
 def _add_viewers(viewers: argparse._ArgumentGroup) -> None:
@@ -151,28 +161,82 @@ def command(args: argparse.Namespace) -> int:
         config = config.model_copy(update={"seed": args.seed})
     if args.no_figures:
         config = config.model_copy(update={"output": config.output.model_copy(update={"figures": False})})
-    observers = _observers(args)  # before any frame: a missing viewer extra is reported at once
-    try:
-        result = run(
-            args.out,
-            dataset=args.dataset,
-            sequence=args.sequence,
-            start=args.start,
-            stop=args.stop,
-            stride=args.stride,
-            config=config,
-            progress=not args.no_progress,
-            odometry=odometry,
-            overwrite=args.overwrite,
-            dataset_kind=args.dataset_kind,
-            dataset_options=options,
-            observers=observers,
-            memory_from=args.memory_from,
-        )
-    finally:
-        for observer in observers:
-            observer.close()
+    # --json: stdout holds the one JSON object only; anything else printed during the run (the --odometry
+    # replay's note, a viewer's or an observer's line) goes to stderr with the progress bar and the log.
+    with contextlib.redirect_stdout(sys.stderr) if args.json else contextlib.nullcontext():
+        observers = _observers(args)  # before any frame: a missing viewer extra is reported at once
+        failure: HippoNavError | None = None
+        try:
+            result = run(
+                args.out,
+                dataset=args.dataset,
+                sequence=args.sequence,
+                start=args.start,
+                stop=args.stop,
+                stride=args.stride,
+                config=config,
+                progress=not args.no_progress,
+                odometry=odometry,
+                overwrite=args.overwrite,
+                dataset_kind=args.dataset_kind,
+                dataset_options=options,
+                observers=observers,
+                memory_from=args.memory_from,
+            )
+        except HippoNavError as err:
+            # Stopped by an unreadable frame mid-run, or a results folder that stopped taking files: the
+            # results exist (`err.result`). Without --json (or without results) `main` prints the one line.
+            if not args.json or getattr(err, "result", None) is None:
+                raise
+            print(f"hippo-nav: error: {err}", file=sys.stderr)
+            failure, result = err, err.result  # type: ignore[attr-defined]
+        finally:
+            for observer in observers:
+                observer.close()
+    if args.json:
+        return _print_json(args, result, failure)
     return _print_result(args, result)
+
+
+def _exit(result: RunResult) -> tuple[str, int, str | None]:
+    """(exit_reason, exit code, signal) of a run that returned: "done", 0 — or "interrupted", 128 + the
+    signal that stopped the frames, or came after the last one (the correction, the figures, a viewer)."""
+    signal = result.metrics.get("interrupted_by") or ("SIGINT" if result.interrupted else None)
+    if signal is None:
+        return "done", 0, None
+    return "interrupted", SIGNAL_EXIT.get(signal, 130), signal
+
+
+def _print_json(args: argparse.Namespace, result: RunResult, failure: HippoNavError | None = None) -> int:
+    """`--json`: one JSON object on stdout (docs/pipeline.md, "Machine-readable output"); the exit code.
+
+    `failure`: the error that stopped a run whose results exist (an unreadable frame mid-run:
+    "stopped_by_error"; a results folder that stopped taking files: "not_written", `results` is then the
+    folder they were written to instead, or null)."""
+    from hippo_nav.pipeline.results import ResultsNotWrittenError, json_safe
+
+    results: Path | str | None = args.out
+    if failure is None:
+        reason, code, signal = _exit(result)
+    elif isinstance(failure, ResultsNotWrittenError):
+        reason, code, signal, results = "not_written", 2, None, failure.rescued_to
+    else:
+        reason, code, signal = "stopped_by_error", 2, None
+    report: dict[str, Any] = {"exit_code": code, "exit_reason": reason}
+    if signal is not None:
+        report["signal"] = signal
+    if failure is not None:
+        report["error"] = str(failure)  # the words of the one line on stderr
+    report["results"] = None if results is None else str(results)
+    if args.video and reason != "not_written":
+        report["video"] = str(Path(args.out) / "mapping.mp4")
+    if args.rerun and not args.rerun.startswith("rerun") and reason != "not_written":
+        report["rerun_recording"] = args.rerun
+    report["summary"] = _summary(result.metrics)
+    errors = result.metrics.get("errors") or {}
+    report["errors"] = {name: e for name, e in errors.items() if isinstance(e, dict) and "ate_2d_m" in e}
+    print(json.dumps(json_safe(report), indent=2, allow_nan=False))
+    return code
 
 
 def _print_result(args: argparse.Namespace, result: RunResult) -> int:
@@ -187,12 +251,13 @@ def _print_result(args: argparse.Namespace, result: RunResult) -> int:
         last_frame = max(r["frame"] for r in rows)
         print(f"bump table at frame {last_frame} (radians on the torus):")
         print(format_bump_table([r for r in rows if r["frame"] == last_frame]))
+    reason, code, _ = _exit(result)
     if result.interrupted:
         print(f"interrupted after {result.metrics['frames']} frames; results so far written to {args.out}")
-        return SIGNAL_EXIT.get(result.metrics.get("interrupted_by", "SIGINT"), 130)
-    if result.metrics.get("interrupted_by"):  # every frame, but a signal during the correction or the figures
+        return code
+    if reason == "interrupted":  # every frame, but a signal during the correction or the figures
         print(f"interrupted after the last frame; results written to {args.out} (see metrics.json)")
-        return SIGNAL_EXIT.get(result.metrics["interrupted_by"], 130)
+        return code
     print(f"results written to {args.out}")
     if args.video:
         print(f"video written to {Path(args.out) / 'mapping.mp4'}")

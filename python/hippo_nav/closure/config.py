@@ -9,7 +9,7 @@ the proposers had sections of their own (`closure.proximity_min_inliers` → `cl
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from typing import ClassVar, Literal
+from typing import Any, ClassVar, Literal
 
 from pydantic import ConfigDict, Field
 
@@ -55,7 +55,7 @@ class ClosureConfig(PartSections):
     neighbour confirmation, and the sections of the proposers (`closure.PROPOSERS`)."""
 
     model_config = ConfigDict(frozen=True)
-    registries: ClassVar = (_proposers,)
+    registries: ClassVar[tuple[Any, ...]] = (_proposers,)
 
     orb_features: int = Field(
         500, ge=16, le=20000, description="features (ORB corners or SIFT blobs) detected per left image"

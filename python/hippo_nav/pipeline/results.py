@@ -262,12 +262,12 @@ def _segment_lengths(gt: np.ndarray) -> tuple[float, ...]:
     return tuple(round(total * f, 1) for f in (0.25, 0.5, 0.75) if total * f > 1.0)
 
 
-def _clean(value: Any) -> Any:
-    """JSON-safe: NaN/inf → None, numpy scalars → Python."""
+def json_safe(value: Any) -> Any:
+    """JSON-safe: NaN/inf → None (strict parsers refuse them), numpy scalars → Python."""
     if isinstance(value, dict):
-        return {str(k): _clean(v) for k, v in value.items()}
+        return {str(k): json_safe(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_clean(v) for v in value]
+        return [json_safe(v) for v in value]
     if isinstance(value, np.generic):
         value = value.item()
     if isinstance(value, float) and not math.isfinite(value):
@@ -671,7 +671,7 @@ def _write_results(
         metrics["figures"] = [p.name for p in written]
         metrics["timing"]["figures_s"] = time.perf_counter() - clock
     with shield():
-        write_text(out / "metrics.json", json.dumps(_clean(metrics), indent=2) + "\n")
+        write_text(out / "metrics.json", json.dumps(json_safe(metrics), indent=2) + "\n")
 
 
 def _write_data(
@@ -706,7 +706,7 @@ def _write_data(
     metrics = result.metrics
     metrics["timing"]["write_s"] = time.perf_counter() - clock
     # Written before the map and the figures too, so that whatever happens then the metrics are there.
-    write_text(out / "metrics.json", json.dumps(_clean(metrics), indent=2) + "\n")
+    write_text(out / "metrics.json", json.dumps(json_safe(metrics), indent=2) + "\n")
     if config.output.save_map and experience_map is not None:
         for name, save in (("map.bin", experience_map.save), ("map.g2o", experience_map.write_g2o)):
             try:

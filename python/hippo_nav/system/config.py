@@ -262,7 +262,7 @@ class PipelineConfig(PartSections):
     """Everything a run needs besides its input. The sections of the registered odometries and view
     descriptors (`vo`, `views`, `view_words`, and any registered since) are derived from their registries."""
 
-    registries: ClassVar = (_odometries, _descriptors)
+    registries: ClassVar[tuple[Any, ...]] = (_odometries, _descriptors)
 
     seed: int = Field(0, ge=0, le=2**31 - 1, description="one seed for every random choice of the run")
     overlap_front_end: bool = Field(
