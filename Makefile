@@ -3,7 +3,8 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.deps-installed
 
-.PHONY: help setup runtime develop demo test test-all test-rust test-python test-python-all bench bench-gtsam lint
+.PHONY: help setup runtime develop demo test test-all test-rust test-rust-fast test-python test-python-all
+.PHONY: bench bench-gtsam lint
 .PHONY: wheel wheel-check
 
 help: ## list targets
@@ -27,8 +28,14 @@ develop: setup ## build the Rust engine (release) and install hippo_nav with its
 demo: runtime ## the main job: run hippo-nav on the built-in synthetic demo sequence
 	$(VENV)/bin/hippo-nav run --out runs/demo --overwrite
 
-test-rust: ## Rust core tests
+test-rust: ## Rust core tests, every crate, debug assertions on (what CI runs)
 	cargo test --workspace
+
+# The same Rust tests in the release profile: they reuse the engine's release build instead of compiling
+# every dependency again (the dev profile is optimised too, so that is minutes on two cores); `test-rust`
+# keeps the debug assertions for CI. The binding crate has no tests of its own.
+test-rust-fast: develop ## Rust core tests, release profile (reuses the engine's build)
+	cargo test --release
 
 # The fast selection: every area, without the tests marked slow (whole sequences, Ray clusters, the
 # long-run equivalences; `pytest --markers` and docs/testing.md say which and why), each test stopped
@@ -40,7 +47,7 @@ test-python: develop ## Python tests, the fast selection (not slow; a per-test t
 test-python-all: develop ## every Python test, slow ones included (benchmarks skipped)
 	$(PY) -m pytest
 
-test: test-rust test-python ## the fast test suite: Rust core + the fast Python selection (minutes)
+test: test-rust-fast test-python ## the fast test suite: Rust core + the fast Python selection (minutes)
 
 test-all: test-rust test-python-all ## the whole test suite, slow tests included (what CI runs)
 
