@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 HELP = "write the paper's theory figures (or the appearance levels of the synthetic street) as PNG files"
 DESCRIPTION = (
@@ -24,16 +23,9 @@ def add_arguments(figures: argparse.ArgumentParser) -> None:
 
 def command(args: argparse.Namespace) -> int:
     from hippo_nav._core import HippoNavError
+    from hippo_nav.io.atomic import output_folder
 
-    out = Path(args.out)
-    # Checked before the figures are drawn (seconds): a file at --out, or a folder that cannot be made, is
-    # one line naming it, not the system's "[Errno 17] File exists".
-    if out.exists() and not out.is_dir():
-        raise HippoNavError(f"--out {out}: not a folder (a file is there); give a folder for the PNG files")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise HippoNavError(f"--out {out}: cannot create the folder ({err.strerror or err})") from None
+    out = output_folder(args.out, "the PNG files")  # checked before the figures are drawn (seconds)
     try:
         if args.appearance:
             from hippo_nav.synthetic.figures import appearance_figure

@@ -35,6 +35,7 @@ __all__ = [
     "atomic_path",
     "open_atomic",
     "open_lock",
+    "output_folder",
     "write_bytes",
     "write_image",
     "write_text",
@@ -204,6 +205,19 @@ def _fresh_folder(path: Path, tag: str) -> Path:
         except OSError as err:
             raise WriteError(path, _reason(err)) from None
     raise WriteError(path, "no free temporary name beside it")
+
+
+def output_folder(out: str | Path, holds: str) -> Path:
+    """`out` (a command's `--out`), created when missing, before any work; a file there, or a folder that
+    cannot be made, is one `HippoNavError` naming it and what it is for (`holds`), not `[Errno 17] …`."""
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise HippoNavError(f"--out {out}: not a folder (a file is there); give a folder for {holds}")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise HippoNavError(f"--out {out}: cannot create the folder ({_reason(err)})") from None
+    return out
 
 
 def open_lock(path: str | Path) -> IO[str]:

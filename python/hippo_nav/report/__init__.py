@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from hippo_nav._core import HippoNavError
-from hippo_nav.io.atomic import write_text
+from hippo_nav.io.atomic import output_folder, write_text
 from hippo_nav.report.collect import RunFileError, RunRow, SkippedRun, collect, collect_runs
 from hippo_nav.report.tables import axis_columns, stats, value_columns, write_tables
 
@@ -70,7 +70,7 @@ def write_report(
         raise HippoNavError(f"--metric {metric}: no run has it; choose from {', '.join(value_columns(rows))}")
     if key is not None and key not in keys:
         raise HippoNavError(f"--key {key}: not a key the runs vary; they vary {', '.join(keys) or 'nothing'}")
-    out = _report_folder(Path(out))
+    out = output_folder(out, "the report")
     files = write_tables(rows, out, skipped)
     lesions = lesion_comparison(rows, keys)
     if lesions is not None:
@@ -85,15 +85,3 @@ def write_report(
             made.append(plots.response(rows, keys, metric, chosen, out))
         files += [p for p in made if p is not None]
     return Report(len(rows), files, rows, skipped)
-
-
-def _report_folder(out: Path) -> Path:
-    """`out`, created when missing; a `HippoNavError` naming it (not the system's `[Errno …]`) when it is a
-    file or cannot be made."""
-    if out.exists() and not out.is_dir():
-        raise HippoNavError(f"--out {out}: not a folder (a file is there); give a folder for the report")
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise HippoNavError(f"--out {out}: cannot create the folder ({err.strerror or err})") from None
-    return out
