@@ -98,6 +98,18 @@ def rendered(tmp_path_factory: pytest.TempPathFactory) -> KittiOdometry:
 
 
 @pytest.fixture
+def thread_limits_restored(monkeypatch):
+    """For tests that call a sweep's `execute_run` in this process: it limits the thread pools of the process
+    it runs in (a Ray worker's), here pytest's; they are put back afterwards."""
+    # Set to what rayon would take anyway, so the worker's `setdefault` leaves this process's pool as it is.
+    default = str(len(os.sched_getaffinity(0)))
+    monkeypatch.setenv("RAYON_NUM_THREADS", os.environ.get("RAYON_NUM_THREADS", default))
+    threads = cv2.getNumThreads()
+    yield
+    cv2.setNumThreads(threads)
+
+
+@pytest.fixture
 def disposition():
     """Set a signal's disposition for one test and put the inherited one back afterwards: the tests must not
     depend on how pytest was started (under `nohup` SIGHUP arrives ignored)."""

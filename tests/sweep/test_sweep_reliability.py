@@ -21,7 +21,6 @@ import threading
 import types
 from pathlib import Path
 
-import cv2
 import pytest
 import yaml
 from hippo_nav._core import HippoNavError
@@ -134,14 +133,7 @@ def fake_ray(monkeypatch):
     ray.pool.shutdown(wait=True)
 
 
-@pytest.fixture(autouse=True)
-def _thread_limits_restored(monkeypatch):
-    """`execute_run` limits the thread pools of the process it runs in (a Ray worker's); here that is pytest's."""
-    default = str(len(os.sched_getaffinity(0)))
-    monkeypatch.setenv("RAYON_NUM_THREADS", os.environ.get("RAYON_NUM_THREADS", default))
-    threads = cv2.getNumThreads()
-    yield
-    cv2.setNumThreads(threads)
+pytestmark = pytest.mark.usefixtures("thread_limits_restored")
 
 
 def _manifests(out: Path) -> dict[str, dict]:

@@ -4,9 +4,7 @@ shipped back from a machine that cannot see the sweep folder."""
 from __future__ import annotations
 
 import json
-import os
 
-import cv2
 import numpy as np
 import pytest
 from hippo_nav.io import read_kitti_poses
@@ -14,16 +12,7 @@ from hippo_nav.sweep import build_space
 from hippo_nav.sweep.worker import SESSION_TOKEN, execute_run
 from hippo_nav.synthetic import demo_sequence
 
-
-@pytest.fixture(autouse=True)
-def _thread_limits_restored(monkeypatch):
-    """`execute_run` limits the thread pools of the process it runs in (a Ray worker's); here that is pytest's."""
-    # Set to what rayon would take anyway, so the worker's `setdefault` leaves this process's pool as it is.
-    default = str(len(os.sched_getaffinity(0)))
-    monkeypatch.setenv("RAYON_NUM_THREADS", os.environ.get("RAYON_NUM_THREADS", default))
-    threads = cv2.getNumThreads()
-    yield
-    cv2.setNumThreads(threads)
+pytestmark = pytest.mark.usefixtures("thread_limits_restored")
 
 
 def test_drift_and_a_replayed_file_run_and_their_manifest_says_what_ran(tmp_path):
