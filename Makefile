@@ -39,10 +39,13 @@ test-rust-fast: develop ## Rust core tests, release profile (reuses the engine's
 
 # The fast selection: every area, without the tests marked slow (whole sequences, Ray clusters, the
 # long-run equivalences; `pytest --markers` and docs/testing.md say which and why), each test stopped
-# after PYTEST_FAST_TIMEOUT_S.
+# after PYTEST_FAST_TIMEOUT_S, spread over one pytest-xdist worker per core (PYTEST_WORKERS): much of a
+# test is single-threaded Python, so two workers on two cores took 0.69× the time of one (docs/testing.md).
+# `make test-all` keeps one process: the slow tests start Ray clusters and time their own signals.
 PYTEST_FAST_TIMEOUT_S ?= 120
-test-python: develop ## Python tests, the fast selection (not slow; a per-test time limit)
-	$(PY) -m pytest -m "not slow" --timeout=$(PYTEST_FAST_TIMEOUT_S)
+PYTEST_WORKERS ?= auto
+test-python: develop ## Python tests, the fast selection (not slow; a per-test time limit; a worker per core)
+	$(PY) -m pytest -m "not slow" --timeout=$(PYTEST_FAST_TIMEOUT_S) -n $(PYTEST_WORKERS)
 
 test-python-all: develop ## every Python test, slow ones included (benchmarks skipped)
 	$(PY) -m pytest

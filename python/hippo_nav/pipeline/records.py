@@ -34,6 +34,8 @@ class RunRecord:
     vertex_position: dict[int, int] = field(default_factory=dict)
     # Wall time of the frame loop (s): with the front end frames ahead, less than the stages' sum.
     wall_s: float = 0.0
+    # CPU time of the whole process over the frame loop (s), every thread: what a frame costs the machine.
+    cpu_s: float = 0.0
 
     def __len__(self) -> int:
         return len(self.frames)

@@ -380,6 +380,10 @@ def timing(record: RunRecord) -> dict[str, Any]:
         if record.wall_s > 0
         else (n / frame_total if frame_total else None),
         "frames_per_s_sequential": n / frame_total if frame_total > 0 else None,
+        # Every thread's CPU a frame (the stages' times above are wall times on their own threads), and the
+        # cores it kept busy on average: the budget a shared machine pays, which more overlap cannot lower.
+        "cpu_ms_per_frame": 1e3 * record.cpu_s / n if n else None,
+        "cores_busy": record.cpu_s / record.wall_s if record.wall_s > 0 else None,
         "frames_per_s_without_image_loading": n / (frame_total - per_stage["load"])
         if frame_total > per_stage["load"]
         else None,

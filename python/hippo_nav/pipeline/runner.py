@@ -154,7 +154,7 @@ class Pipeline:
     def _run_frames(self, out_dir: Path | None, signals: _Signals) -> RunResult:
         interrupted = False
         stopped_by: DatasetError | None = None
-        started = time.perf_counter()
+        started, started_cpu = time.perf_counter(), time.process_time()
         record = self.record
         guard = OdometryGuard(self.odometry)
         front_end = FrontEnd(self.dataset, guard, self.system.view_cells, self.config.overlap_front_end)
@@ -189,6 +189,7 @@ class Pipeline:
         with signals.shielded():
             self.system.finish()
             record.wall_s = time.perf_counter() - started
+            record.cpu_s = time.process_time() - started_cpu
             self._recorder.final_snapshot(self.system.engine)
         result = self._finish(out_dir, interrupted, None if stopped_by is None else str(stopped_by), signals)
         try:
