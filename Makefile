@@ -52,11 +52,15 @@ test: test-python ## the fast test suite: the fast Python selection, every area 
 
 test-all: test-rust test-python-all ## the whole test suite, slow tests included (what CI runs)
 
-bench: develop ## criterion and pytest-benchmark benchmarks
+# Real KITTI frames for the per-stage budget (docs/results.md, "Cost"): $(HIPPO_NAV_DATA) or ../shared/data.
+KITTI_ROOT ?= $(firstword $(wildcard $(HIPPO_NAV_DATA)/kitti_odometry ../shared/data/kitti_odometry))
+
+bench: develop ## criterion and pytest-benchmark benchmarks, and the per-stage CPU budget on real KITTI 06
 	cargo bench --workspace
 	mkdir -p runs
 	$(PY) -m pytest --benchmark-only --benchmark-enable --benchmark-json=runs/bench.json tests/benchmarks
 	$(PY) tests/benchmarks/table.py runs/bench.json
+	$(if $(KITTI_ROOT),$(PY) tests/benchmarks/cost_budget.py --kitti $(KITTI_ROOT),@echo "per-stage budget skipped: no KITTI data (set KITTI_ROOT)")
 
 bench-gtsam: setup ## the pose-graph solver against GTSAM's LM, one table (installs the optional gtsam)
 	$(VENV)/bin/maturin develop --release --quiet --extras test,bench

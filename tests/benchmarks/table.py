@@ -11,7 +11,15 @@ import json
 import sys
 from pathlib import Path
 
-RATIOS = ("speedup", "frames_per_s", "frames_per_s_previous", "camera_period_ratio", "vo_over_read")
+RATIOS = (
+    "speedup",
+    "frames_per_s",
+    "frames_per_s_previous",
+    "cpu_ratio",
+    "cpu_ms_per_frame",
+    "camera_period_ratio",
+    "vo_over_read",
+)
 
 
 def _cell(value: object) -> str:
