@@ -74,6 +74,8 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--out", type=Path, default=Path("runs/build_profiles"))
     args = parser.parse_args()
+    # Cargo runs in the project root and each round in the output folder: every path made absolute first.
+    args.kitti, args.out = args.kitti.resolve(), args.out.resolve()
     args.out.mkdir(parents=True, exist_ok=True)
     built = {}
     for name, (units, lto) in PROFILES.items():
