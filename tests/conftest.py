@@ -44,6 +44,22 @@ def demo() -> KittiOdometry:
     return KittiOdometry(demo_sequence(), DEMO_SEQUENCE)
 
 
+DEMO_RUN_FRAMES = 60
+
+
+@pytest.fixture(scope="session")
+def demo_results(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The results folder of a run over the demo's first `DEMO_RUN_FRAMES` frames, without figures, written
+    once per session: read it, never change it (copy what a test alters)."""
+    from hippo_nav.cli import main
+
+    out = tmp_path_factory.mktemp("demo_results") / "run"
+    assert (
+        main(["run", "--out", str(out), "--no-progress", "--no-figures", "--stop", str(DEMO_RUN_FRAMES)]) == 0
+    )
+    return out
+
+
 @pytest.fixture
 def quiet() -> PipelineConfig:
     """The default config without figures."""

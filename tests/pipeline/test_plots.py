@@ -23,11 +23,12 @@ from hippo_nav.pipeline.plots import (
     write_run_figures,
 )
 from hippo_nav.pipeline.records import RunRecord, RunResult
+from hippo_nav.recording import GRID_POPULATIONS
 from hippo_nav.system.records import FrameRecord
 
 PERIOD_M = 100.0
 KS = (1, 2, 4)
-SAMPLED_SIDE = 8  # the pipeline records an 8 × 8 sub-grid of every torus
+SAMPLED_SIDE = 8  # the pipeline records an 8 × 8 sub-grid of every torus (of a module's unit cell)
 FOLD_BINS = 40  # 2.5 m bins over the 100 m period
 
 
@@ -108,7 +109,7 @@ def _run_result(
     record = RunRecord(frames=[_frame(i) for i in range(n)])
     for m, k in enumerate(KS):
         if not lesioned[m]:
-            record.unit_activity[f"grid k={k}"] = list(_unit_activities(xy, k))
+            record.unit_activity[GRID_POPULATIONS[m]] = list(_unit_activities(xy, k))
     record.unit_activity["place"] = list(_unit_activities(xy, None))
     record.snapshots = {0: _snapshot(0, lesioned), n - 1: _snapshot(n - 1, lesioned)}
     metrics = {"errors": {"vo": {"ate_2d_m": 3.0}, "corrected": {"ate_2d_m": 0.5}}} if ground_truth else {}

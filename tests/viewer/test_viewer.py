@@ -398,7 +398,7 @@ def test_bad_viewer_flags_are_one_line_and_exit_2(tmp_path, capsys, flags, says)
 def test_help_shows_every_options_default():
     parser = build_parser()
     commands = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices
-    assert set(commands) == {"run", "render", "figures", "vocabulary", "sweep", "report", "config"}
+    assert set(commands) == {"run", "render", "figures", "vocabulary", "sweep", "report", "record", "config"}
     for name, command in commands.items():
         formatter = command._get_formatter()
         for action in command._actions:

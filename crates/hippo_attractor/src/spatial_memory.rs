@@ -88,7 +88,8 @@ impl SpatialMemoryParams {
                 ),
             });
         }
-        check::in_range("torus_period_m", self.torus_period_m, 1.0, 1e5)?;
+        // 0.1 m: a rodent arena's dorsal grid spacing is ~0.3 m, so its torus (P = 4 × spacing) is ~1.2 m.
+        check::in_range("torus_period_m", self.torus_period_m, 0.1, 1e5)?;
         check::in_unit_interval("bump_threshold_frac", self.bump_threshold_frac)?;
         check::in_range("settle_s", self.settle_s, 0.0, 10.0)?;
         self.hd.validate()?;

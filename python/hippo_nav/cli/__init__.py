@@ -2,7 +2,8 @@
 street along a KITTI ground truth), `hippo-nav figures` (the paper's theory figures, or with --appearance
 the synthetic street at each appearance level), `hippo-nav vocabulary` (the word view cells' vocabulary,
 trained on a folder of images or remade from the renders), `hippo-nav sweep` (many runs over a cross-product
-of settings, on Ray), `hippo-nav report` (one table and figures over sweeps and runs) and `hippo-nav config`
+of settings, on Ray), `hippo-nav report` (one table and figures over sweeps and runs), `hippo-nav record` (an
+open-field session of the networks, recorded and measured as a lab would) and `hippo-nav config`
 (the default config as JSON, a config file checked without running or shown resolved).
 
 Exit codes: 0 done; 2 bad input (one line on stderr saying what to fix; nothing is processed) or a frame
@@ -21,7 +22,7 @@ from collections.abc import Callable
 from types import ModuleType
 from typing import NoReturn
 
-from hippo_nav.cli import config, figures, render, report, run, sweep, vocabulary
+from hippo_nav.cli import config, figures, record, render, report, run, sweep, vocabulary
 from hippo_nav.cli.common import HelpFormatter
 
 _COMMANDS: dict[str, ModuleType] = {
@@ -31,6 +32,7 @@ _COMMANDS: dict[str, ModuleType] = {
     "vocabulary": vocabulary,
     "sweep": sweep,
     "report": report,
+    "record": record,
     "config": config,
 }
 """The commands in the order of the help, each a module with `HELP`, `DESCRIPTION`, `add_arguments(parser)` and

@@ -53,6 +53,27 @@ def bounded_int(lo: int, hi: int) -> Callable[[str], int]:
     return parse
 
 
+def bounded_float(lo: float, hi: float) -> Callable[[str], float]:
+    """An argparse `type=` for a finite number from `lo` to `hi` (NaN, infinities and text are refused with
+    argparse's one line, exit 2)."""
+
+    def parse(text: str) -> float:
+        try:
+            value = float(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"{_shown(text)} is not a number; give one from {lo} to {hi}"
+            ) from None
+        if not lo <= value <= hi:  # NaN fails every comparison
+            raise argparse.ArgumentTypeError(
+                f"{_shown(text)} is out of range; give a number from {lo} to {hi}"
+            )
+        return value
+
+    parse.__name__ = f"number from {lo} to {hi}"
+    return parse
+
+
 def image_size(lo: int, hi: int) -> Callable[[str], str]:
     """An argparse `type=` for `WIDTHxHEIGHT` pixels, each side from `lo` to `hi`; returns the text as given
     (the command splits it), so a bad size is argparse's one line, exit 2, before anything is rendered."""

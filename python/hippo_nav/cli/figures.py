@@ -1,23 +1,43 @@
-"""`hippo-nav figures`: the paper's theory figures, or the synthetic street at each appearance level."""
+"""`hippo-nav figures`: the paper's theory figures, the synthetic street at each appearance level, or the
+networks of one run measured and drawn from its results folder (`--run DIR`)."""
 
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
-HELP = "write the paper's theory figures (or the appearance levels of the synthetic street) as PNG files"
+HELP = (
+    "write the paper's theory figures, the synthetic street's appearance levels, or (--run DIR) a run's "
+    "neural figures"
+)
 DESCRIPTION = (
     "Writes the paper's theory figures (the 1-D theory of multi-resolution grid codes) as PNG "
     "files; with --appearance, appearance_levels.png instead: one place of the synthetic street at each "
-    "appearance level, on pass 0 and pass 1 (docs/render.md)."
+    "appearance level, on pass 0 and pass 1 (docs/render.md). With --run DIR, the networks of that `hippo-nav "
+    "run` results folder, from its recording (recording.npz, module_phase.npz) without running again: rate "
+    "maps of example units per grid module and of the place torus on the true positions and folded onto "
+    "each module's spacing P/k, and each module's decoded phase against the true position modulo P/k with "
+    "its circular error (PNG and PDF, and neural_measures.json; docs/pipeline.md)."
 )
 
 
 def add_arguments(figures: argparse.ArgumentParser) -> None:
-    figures.add_argument("--out", default="runs/figures", help="folder for the PNG files")
     figures.add_argument(
+        "--out",
+        default=None,
+        help="folder for the figures (default: runs/figures, or DIR/figures with --run)",
+    )
+    which = figures.add_mutually_exclusive_group()
+    which.add_argument(
         "--appearance",
         action="store_true",
         help="write appearance_levels.png (the synthetic street at each appearance level) instead",
+    )
+    which.add_argument(
+        "--run",
+        metavar="DIR",
+        default=None,
+        help="a `hippo-nav run` results folder: draw its networks' rate maps and decoded phases instead",
     )
 
 
@@ -25,7 +45,9 @@ def command(args: argparse.Namespace) -> int:
     from hippo_nav._core import HippoNavError
     from hippo_nav.io.atomic import output_folder
 
-    out = output_folder(args.out, "the PNG files")  # checked before the figures are drawn (seconds)
+    if args.run is not None:
+        return _run_figures(Path(args.run), args.out)
+    out = output_folder(args.out or "runs/figures", "the PNG files")  # checked before the figures (seconds)
     try:
         if args.appearance:
             from hippo_nav.synthetic.figures import appearance_figure
@@ -37,4 +59,19 @@ def command(args: argparse.Namespace) -> int:
         write_all_figures(out)
     except OSError as err:
         raise HippoNavError(f"{err.filename or out}: {err.strerror or err}") from None
+    return 0
+
+
+def _run_figures(run: Path, out_arg: str | None) -> int:
+    from hippo_nav._core import HippoNavError
+    from hippo_nav.io.atomic import output_folder
+    from hippo_nav.report.neural import load_run_recording, write_neural_figures
+
+    load_run_recording(run)  # a folder without a recording is refused before any folder is made
+    out = output_folder(out_arg if out_arg is not None else run / "figures", "the figures")
+    try:
+        written = write_neural_figures(run, out)
+    except OSError as err:
+        raise HippoNavError(f"{err.filename or out}: {err.strerror or err}") from None
+    print(f"wrote {', '.join(p.name for p in written)} into {out}")
     return 0

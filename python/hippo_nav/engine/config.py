@@ -174,7 +174,7 @@ class EngineConfig(_Section):
         _d("max_substep_s"), ge=1e-4, le=1.0, description="longest integration sub-step (s)"
     )
     torus_period_m: float = Field(
-        _d("torus_period_m"), ge=1.0, le=1e5, description="side of the square the torus stands for (m)"
+        _d("torus_period_m"), ge=0.1, le=1e5, description="side of the square the torus stands for (m)"
     )
     hd: HdConfig = Field(default_factory=HdConfig)
     grid: list[GridConfig] = Field(default_factory=_default_grid, min_length=N_MODULES, max_length=N_MODULES)

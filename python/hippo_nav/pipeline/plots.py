@@ -45,9 +45,10 @@ from matplotlib.collections import LineCollection
 from matplotlib.colors import Colormap
 from matplotlib.figure import Figure
 
-from hippo_nav.engine.config import MODULE_NAMES, N_MODULES
+from hippo_nav.engine.config import MODULE_NAMES, N_MODULES, EngineConfig
 from hippo_nav.geometry import planar_xy
 from hippo_nav.io.atomic import atomic_path
+from hippo_nav.recording.session import GRID_POPULATIONS
 
 DEFAULT_TORUS_PERIOD_M = 100.0
 # The paper colour-codes rates "by the jet colormap from blue (zero) to red (high)"; kept for comparison.
@@ -298,10 +299,9 @@ def _networks(record: Any) -> list[tuple[str, int | None, str]]:
     if snapshot is not None and "k" in snapshot:
         ks = [int(k) for k in snapshot["k"]]
     else:
-        ks = sorted(int(name.split("=")[1]) for name in record.unit_activity if name.startswith("grid k="))
+        ks = [grid.k for grid in EngineConfig().grid]
     networks = [
-        (f"grid k={k}", k, f"grid k={k}" + (f" ({MODULE_NAMES[m]})" if len(ks) == N_MODULES else ""))
-        for m, k in enumerate(ks)
+        (GRID_POPULATIONS[m], k, f"grid k={k} ({MODULE_NAMES[m]})") for m, k in enumerate(ks[:N_MODULES])
     ]
     return networks + [("place", None, "CA3 place")]
 

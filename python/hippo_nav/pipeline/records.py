@@ -1,8 +1,14 @@
 """What a run records: the system's `FrameRecord` of every processed frame (`hippo_nav.system.records`), and
 the `RunResult` it ends with. `RunRecord.column(name)` (or the attribute of the same name) gives one field
 over all frames. The runner keeps the `RunRecord` (`RunRecorder`: the frames, and the neural data the
-figures need, read from the engine after each frame) and the time of every stage of a frame
-(`hippo_nav.system.records.StageTimer`).
+figures and the recording need, read from the engine after each frame) and the time of every stage of a
+frame (`hippo_nav.system.records.StageTimer`).
+
+Recorded units (`RunRecord.unit_activity`, named as `hippo_nav.recording`'s populations): of every network
+a regular sub-grid of at most `units_per_axis` units per torus axis (the HD ring: `units_per_axis²` units
+around it). A grid module's layer II is k² identical copies of one `(N/k)²` unit cell (docs/model.md), so
+the sub-grid is taken in the unit cell: every sampled unit is a different one. Unit `(i, j)` (row-major,
+θy then θx) has phase `(2πj/N, 2πi/N)` (`RunRecord.unit_phase_rad`); an HD unit i, `2πi/Nθ`.
 """
 
 from __future__ import annotations
@@ -15,7 +21,12 @@ from typing import Any
 import numpy as np
 
 from hippo_nav.engine import N_MODULES, SpatialMemory, SpatialReadout
+from hippo_nav.recording.session import GRID_POPULATIONS
 from hippo_nav.system.records import STAGES, FrameRecord
+
+UNITS_PER_AXIS = 8
+"""Units kept per torus axis of every network (`RunRecorder`): 64 per population, a few MB over a
+4 500-frame drive (docs/pipeline.md, `recording.npz`)."""
 
 _COLUMNS = {f.name for f in fields(FrameRecord)}
 
@@ -26,8 +37,18 @@ class RunRecord:
 
     frames: list[FrameRecord] = field(default_factory=list)
     stage_s: dict[str, list[float]] = field(default_factory=lambda: {s: [] for s in STAGES})
-    # Sub-sampled unit activities for the firing-rate maps: name -> list of (units,) float32 arrays.
+    # Sub-sampled unit activities (module doc): population name -> list of (units,) float32 arrays.
     unit_activity: dict[str, list[np.ndarray]] = field(default_factory=dict)
+    # Each population's sampled units' phases: (units,) rad for "hd", (units, 2) (θx, θy) rad otherwise.
+    unit_phase_rad: dict[str, np.ndarray] = field(default_factory=dict)
+    # Per frame, each grid module's followed bump (θx, θy, rad) and its unwrapped displacement (m), in the
+    # engine's frame: (N_MODULES, 2) arrays, NaN for a lesioned module.
+    module_tracked_rad: list[np.ndarray] = field(default_factory=list)
+    module_position_m: list[np.ndarray] = field(default_factory=list)
+    # Before the first frame: the followed bumps' phases (N_MODULES, 2) and the heading code the networks
+    # started with (rad; the engine's frame is the map frame turned by it).
+    start_tracked_rad: np.ndarray | None = None
+    initial_heading_rad: float = 0.0
     # Full network snapshots at chosen frames: frame position -> dict of arrays and the readout.
     snapshots: dict[int, dict[str, Any]] = field(default_factory=dict)
     # The run position (index into `frames`) at which each map vertex was made.
@@ -90,19 +111,32 @@ class RunResult:
 
 
 class RunRecorder:
-    """Keeps a run's `RunRecord`: each frame's record, a regular sub-grid of every network's units (for the
-    rate maps; every `unit_stride`-th unit per axis) and full network snapshots at `state_frames` (run
-    positions; the last frame's is added by `final_snapshot`)."""
+    """Keeps a run's `RunRecord`: each frame's record, a regular sub-grid of every network's units and each
+    grid module's decoded bump (module doc), and full network snapshots at `state_frames` (run positions;
+    the last frame's is added by `final_snapshot`). `start`: the engine before the first frame, with the
+    heading code it started with (`initial_heading_rad`): the origin of the recorded phases."""
 
-    def __init__(self, state_frames: Sequence[int], unit_stride: int) -> None:
-        self.record = RunRecord()
+    def __init__(
+        self,
+        state_frames: Sequence[int],
+        units_per_axis: int = UNITS_PER_AXIS,
+        start: SpatialMemory | None = None,
+        initial_heading_rad: float = 0.0,
+    ) -> None:
+        self.record = RunRecord(initial_heading_rad=float(initial_heading_rad))
         self._state_frames = set(state_frames)
-        self._unit_stride = max(int(unit_stride), 1)
+        self._units_per_axis = max(int(units_per_axis), 1)
+        if start is not None:
+            tracked, _ = _module_readout(start.readout(), start.config.lesioned)
+            self.record.start_tracked_rad = tracked
 
     def add(self, frame: FrameRecord, engine: SpatialMemory, readout: SpatialReadout) -> None:
         """Record a processed frame, with the engine's state after it."""
         self.record.append(frame)
         self._record_units(engine)
+        tracked, position = _module_readout(readout, engine.config.lesioned)
+        self.record.module_tracked_rad.append(tracked)
+        self.record.module_position_m.append(position)
         self._snapshot(len(self.record) - 1, engine, readout=readout)
 
     def final_snapshot(self, engine: SpatialMemory) -> None:
@@ -110,18 +144,33 @@ class RunRecorder:
         self._snapshot(len(self.record) - 1, engine, final=True)
 
     def _record_units(self, engine: SpatialMemory) -> None:
-        s = self._unit_stride
-        acts = self.record.unit_activity
+        n = self._units_per_axis
+        acts, phases = self.record.unit_activity, self.record.unit_phase_rad
+        # name -> (unit cell side, units per torus axis, the cell's pattern; None when lesioned)
+        patterns: dict[str, tuple[int, int, np.ndarray | None]] = {}
         for m, grid in enumerate(engine.config.grid):
-            if engine.config.lesioned[m]:
-                continue
-            name = f"grid k={grid.k}"
-            acts.setdefault(name, []).append(
-                np.asarray(engine.grid_layer2(m)[::s, ::s], dtype=np.float32).ravel()
+            cell = grid.n_theta // grid.k
+            live = not engine.config.lesioned[m]
+            patterns[GRID_POPULATIONS[m]] = (
+                cell,
+                grid.n_theta,
+                engine.grid_layer2(m)[:cell, :cell] if live else None,
             )
-        acts.setdefault("place", []).append(
-            np.asarray(engine.place_activity()[::s, ::s], dtype=np.float32).ravel()
-        )
+        place_n = engine.config.place.n_theta
+        patterns["place"] = (place_n, place_n, engine.place_activity())
+        for name, (side, n_theta, pattern) in patterns.items():
+            index = sampled_units(side, n)
+            if pattern is not None:  # a lesioned module is silent: no activity, but its units' phases
+                acts.setdefault(name, []).append(
+                    np.asarray(pattern[np.ix_(index, index)], np.float32).ravel()
+                )
+            if name not in phases:
+                theta_y, theta_x = np.meshgrid(index, index, indexing="ij")
+                phases[name] = 2 * np.pi / n_theta * np.column_stack([theta_x.ravel(), theta_y.ravel()])
+        profile = engine.hd_profile()
+        index = sampled_units(len(profile), n * n)
+        acts.setdefault("hd", []).append(np.asarray(profile[index], np.float32))
+        phases.setdefault("hd", 2 * np.pi / len(profile) * index)
 
     def _snapshot(
         self,
@@ -145,3 +194,21 @@ class RunRecorder:
             "hd_nu_max": sm.config.hd.nu_max,
             "readout": readout if readout is not None else sm.readout(),
         }
+
+
+def sampled_units(side: int, at_most: int) -> np.ndarray:
+    """Indices of a regular sample of at most `at_most` of `side` units along one axis (every
+    `ceil(side / at_most)`-th, from 0)."""
+    stride = max(-(-side // max(at_most, 1)), 1)
+    return np.arange(0, side, stride)
+
+
+def _module_readout(readout: SpatialReadout, lesioned: Sequence[bool]) -> tuple[np.ndarray, np.ndarray]:
+    """Each grid module's followed bump (rad) and unwrapped displacement (m), (N_MODULES, 2) each; NaN
+    for a lesioned module (its readout is the last one before the lesion)."""
+    tracked = np.full((N_MODULES, 2), np.nan)
+    position = np.full((N_MODULES, 2), np.nan)
+    for m, module in enumerate(readout.modules):
+        if not lesioned[m]:
+            tracked[m], position[m] = module.tracked_rad, module.position_m
+    return tracked, position

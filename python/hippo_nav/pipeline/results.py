@@ -16,6 +16,9 @@ trajectories first, then metrics, then figures, so a failing figure never costs 
 | `map.bin`, `map.g2o` | the corrected experience map (versioned save file; g2o pose graph) |
 | `memory/` | what a later run needs to start inside this map (`--map`; `hippo_nav.memory`, docs/memory.md) |
 | `metrics.json` | sizes, loop closures (precision, recall), timing per stage and, with ground truth, errors |
+| `recording.npz` | the networks' sampled units, true and decoded position and heading per frame (`Recording`) |
+| `module_phase.npz` | each grid module's decoded bump per frame (`recording.py`; both for `figures --run`) |
+| `figures/` | not written by the run: `hippo-nav figures --run` draws there; `--overwrite` sets it aside too |
 | `cognitive_map.png`, `neural_state_NNNNNN.png`, `rate_maps.png` | figures (see `plots.py`) |
 
 Every trajectory is in the KITTI camera frame of the first processed frame (x right, y down, z forward).
@@ -70,8 +73,9 @@ log = logging.getLogger("hippo_nav.pipeline")
 
 RESULT_FILES = (
     "config.json", "frames.csv", "bump_table.csv", "map.bin", "map.g2o", "metrics.json",
-    "cognitive_map.png", "rate_maps.png", "mapping.mp4",
+    "cognitive_map.png", "rate_maps.png", "mapping.mp4", "recording.npz", "module_phase.npz",
     "memory/memory.json", "memory/map.bin", "memory/views.npz", "memory/keyframes.npz", "memory/state.npz",
+    "figures/neural_measures.json",  # `hippo-nav figures --run`'s: an earlier run's, never the new one's
 )  # fmt: skip
 RESULT_PATTERNS = (
     "trajectory_*.kitti.txt",
@@ -719,3 +723,7 @@ def _write_data(
                 raise WriteError(out / name, str(err).rsplit(": ", 1)[-1]) from None
     if config.output.save_map and memory is not None:
         write_memory(memory, out / MEMORY_FOLDER)
+    if config.output.recording:
+        from hippo_nav.pipeline.recording import write_recording
+
+        write_recording(result, out, config.engine_config(), config.seed)

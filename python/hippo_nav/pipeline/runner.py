@@ -108,7 +108,9 @@ class Pipeline:
                 f"output.state_frames: {outside} lie outside this run of {n} frames (positions 0 to {n - 1})"
             )
         state_frames = wanted if wanted is not None else [0, n // 2]
-        self._recorder = RunRecorder(state_frames, self.config.engine.place.n_theta // 8)
+        self._recorder = RunRecorder(
+            state_frames, start=self.system.engine, initial_heading_rad=self.system.initial_heading_rad
+        )
 
     @property
     def record(self) -> RunRecord:

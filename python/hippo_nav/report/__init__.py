@@ -7,6 +7,8 @@
 - `figures.py`: a metric per configuration with the seeds as points, the trajectories of one sequence
   overlaid, a metric against one swept key;
 - `lesions.py`: `lesions.md`, the lesion conditions against the order the 1-D theory predicts.
+- `neural.py`: one run's networks from its recording (`hippo-nav figures --run DIR`): rate maps on the true
+  positions and folded onto each module's spacing, each module's decoded phase and its circular error.
 
 A run whose files are malformed is left out with one warning and listed in `table.md` (`collect.py`'s module
 doc); every file is written through `hippo_nav.io.atomic` (whole or not at all, never through a link planted

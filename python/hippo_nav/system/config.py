@@ -248,6 +248,11 @@ class OutputConfig(_Section):
     save_map: bool = Field(
         True, description="write map.bin, map.g2o and memory/ (what `--map` starts a later run inside)"
     )
+    recording: bool = Field(
+        True,
+        description="write recording.npz and module_phase.npz (the networks' sampled units and decoded "
+        "phases per frame, for `hippo-nav figures --run`)",
+    )
 
 
 def _odometries() -> Mapping[str, Part[Callable[..., object]]]:
