@@ -2,9 +2,12 @@
 `hippo_nav.report.neural`): the figures (PNG and PDF) and `neural_measures.json` without running again; the
 decoded phase's circular error small beside each module's spacing (and large when the phase is computed with
 the wrong period); rate maps that are occupancy-normalised and folded on the torus; an older results folder
-refused with the way out.
+refused with the way out; the lab's measures (grid scores, spacing, orientation, information, fields, HD
+tuning, topology) on maps folded onto two spacings, which find each module's lattice along a long synthetic
+road and, on the short demo drive, say why they cannot be read.
 
-The run is the shared `demo_results` folder (tests/conftest.py); it is copied before anything is written."""
+The run is the shared `demo_results` folder (tests/conftest.py); it is copied before anything is written. The
+long drive is synthetic: ideal units of the modules' periods along a car's winding road (`road_recording`)."""
 
 from __future__ import annotations
 
@@ -16,20 +19,33 @@ import numpy as np
 import pytest
 from hippo_nav.cli import main
 from hippo_nav.pipeline.recording import MODULE_PHASE_FILE, RECORDING_FILE
-from hippo_nav.recording import GRID_POPULATIONS
+from hippo_nav.recording import GRID_POPULATIONS, Recording
 from hippo_nav.report.neural import (
     DPI,
     FIGURES,
+    LAB_FOLD_PERIODS,
+    LAB_MIN_COVERAGE,
     MEASURES_FILE,
     PAGE_WIDTH_IN,
+    STYLE,
     circular_error,
     decoded_phase_errors,
+    drive_measures,
+    drive_topology,
+    finite_frames,
+    fold_coverage,
+    lab_measures_figure,
     load_run_recording,
     rate_maps,
 )
+from matplotlib import rc_context
 
 MAX_RMS_ERROR_M = 1.0  # the demo's 60 frames: 0.31–0.34 m per module; 3.3 m with the period 10 % off
 MAX_RMS_FRACTION = 0.04  # of the spacing P/k: 0.3 % (k = 1) to 1.4 % (k = 4)
+ROAD_PERIOD_M = 100.0  # the runs' torus period: spacings 100, 50 and 25 m
+ROAD_SPEED_M_S = 12.0
+ROAD_DT_S = 0.1  # KITTI's frame interval
+ROAD_MODULE_K = (1, 2, 4)
 
 
 @pytest.fixture
@@ -61,7 +77,24 @@ def test_figures_run_writes_png_pdf_and_the_measures_into_the_run_folder(run_cop
         assert error["spacing_m"] == 100.0 / error["k"] and error["frames"] == 60
         assert len(measures["rate_maps"]["example_units"][name]) == 3
     assert measures["rate_maps"]["track"]["bin_size_m"] > 0 and measures["position_source"] == "ground truth"
+    lab = measures["lab_measures"]
+    assert set(lab["populations"]) == {*GRID_POPULATIONS, "place", "hd"}
+    assert lab["fold_periods"] == LAB_FOLD_PERIODS and lab["bins_per_spacing"] > 0
+    assert measures["topology"]["computed"] is False and "topology=True" in measures["topology"]["reason"]
+    assert "lab_measures.png" in measures["figures"]
     assert "neural_measures.json" in capsys.readouterr().out
+
+
+def test_figures_run_topology_says_why_a_short_drive_has_none(run_copy, capsys):
+    assert main(["figures", "--run", str(run_copy), "--topology"]) == 0
+    topology = json.loads((run_copy / "figures" / MEASURES_FILE).read_text())["topology"]
+    # The demo's 60 frames are far from the 600 moving frames a point cloud needs: each population says so.
+    assert set(topology) == {*GRID_POPULATIONS, "hd"}
+    for name, population in topology.items():
+        assert population["computed"] is False, name
+        assert "60 moving frames, fewer than" in population["reason"], name
+    assert main(["figures", "--topology"]) == 2
+    assert "give --run DIR" in capsys.readouterr().err
 
 
 def test_the_decoded_phase_error_is_small_and_a_wrong_period_is_caught(demo_results):
@@ -129,3 +162,134 @@ def test_folded_rate_maps_gather_a_lattice_onto_one_field_smoothed_across_the_fo
     assert rate[0, 0] == pytest.approx(rate[30, 0], rel=0.05) and rate[31, 31] == pytest.approx(
         rate[31, 1], rel=0.05
     )
+
+
+# ------------------------------------------------------------------------------------------------
+# The lab's measures of a whole drive
+
+
+def road_drive(frames: int, seed: int = 5, box_m: float = 800.0) -> tuple[np.ndarray, np.ndarray]:
+    """Positions (frames, 2) m and headings (rad) of a car at 12 m/s on winding roads: long straights and
+    curves (the turn rate an Ornstein–Uhlenbeck process), turned back at the walls of [0, box_m]²."""
+    rng = np.random.default_rng(seed)
+    position, heading = np.empty((frames, 2)), np.empty(frames)
+    here, theta_rad, turn_rad = np.full(2, box_m / 2), 0.4, 0.0
+    for i in range(frames):
+        turn_rad = 0.97 * turn_rad + rng.normal(0.0, 0.012)
+        theta_rad += turn_rad
+        step = ROAD_SPEED_M_S * ROAD_DT_S * np.array([np.cos(theta_rad), np.sin(theta_rad)])
+        for axis in range(2):
+            if not 0.0 <= here[axis] + step[axis] <= box_m:
+                step[axis] = -step[axis]
+        theta_rad = float(np.arctan2(step[1], step[0]))
+        here = here + step
+        position[i], heading[i] = here, theta_rad
+    return position, heading
+
+
+def lattice_units(position_m: np.ndarray, k: int, kappa: float) -> tuple[np.ndarray, np.ndarray]:
+    """64 ideal units of a module k (a run's 8 × 8 sub-grid of the unit cell, phases in [0, 2π/k)²): each a
+    square lattice of fields of spacing P/k, exp(κ(cos(k(2πx/P − θ)) − 1)) per axis; and their phases."""
+    i, j = np.divmod(np.arange(64), 8)
+    phase_rad = np.stack([2 * np.pi * j / 8, 2 * np.pi * i / 8], axis=1) / k
+    angle = k * (2 * np.pi * position_m[:, None, :] / ROAD_PERIOD_M - phase_rad[None])
+    return np.exp(kappa * (np.cos(angle) - 1.0)).prod(axis=2).astype(np.float32), phase_rad
+
+
+def road_recording(
+    frames: int = 6000, populations: tuple[str, ...] = (*GRID_POPULATIONS, "place", "hd")
+) -> Recording:
+    """A run's recording along `road_drive` with ideal units: the modules' lattices (fields about a fifth
+    of the spacing wide), the place torus's narrower ones, and an HD ring tuned to the true heading."""
+    position, heading = road_drive(frames)
+    activity, phases = {}, {}
+    for name, k, kappa in zip((*GRID_POPULATIONS, "place"), (*ROAD_MODULE_K, 1), (4.0, 4.0, 4.0, 8.0)):
+        if name in populations:
+            activity[name], phases[name] = lattice_units(position, k, kappa)
+    if "hd" in populations:
+        phases["hd"] = 2 * np.pi * np.arange(64) / 64
+        activity["hd"] = np.exp(4.0 * (np.cos(heading[:, None] - phases["hd"][None]) - 1.0)).astype(
+            np.float32
+        )
+    return Recording(
+        time_s=np.arange(frames) * ROAD_DT_S,
+        position_m=position,
+        heading_rad=heading,
+        speed_m_s=np.full(frames, ROAD_SPEED_M_S),
+        decoded_position_m=position.copy(),
+        decoded_heading_rad=heading.copy(),
+        populations=activity,
+        unit_phase_rad=phases,
+        torus_period_m=ROAD_PERIOD_M,
+        module_k=ROAD_MODULE_K,
+        lesioned=(False, False, False),
+        metadata={"source": "tests: ideal units along a synthetic road"},
+    )
+
+
+def test_folded_lab_measures_find_each_modules_square_lattice_along_a_road(tmp_path):
+    recording = road_recording()
+    measures = drive_measures(recording, units_per_population=8, shuffles=10)
+    populations = measures.summary["populations"]
+    for name in (*GRID_POPULATIONS, "place"):
+        entry = populations[name]
+        assert entry["measured"] and entry["coverage"] > 0.8, name  # the winding road covers the fold
+        assert entry["fold_m"] == LAB_FOLD_PERIODS * entry["design_spacing_m"], name
+        # A square lattice: every unit passes the shuffle test at 90°, none at 60°.
+        assert entry["fraction_passing_90"] == 1.0 and entry["fraction_passing_60"] == 0.0, name
+        assert entry["median_score_90"] > entry["threshold_90"] > entry["median_score_60"], name
+        assert entry["spacing_over_design"] == pytest.approx(1.0, abs=0.03), name  # spacing P/k
+        assert abs(entry["orientation_mean_deg"]) < 3.0, name  # the torus's axes
+        assert entry["information_mean_bits_per_spike"] > 1.0 and entry["field_count_mean"] >= 2, name
+    ratios = measures.summary["module_spacing_ratios"]
+    assert [ratios[name] for name in GRID_POPULATIONS] == pytest.approx([1.0, 0.5, 0.25], rel=0.03)
+    hd = populations["hd"]
+    assert hd["measured"] and hd["fraction_passing"] == 1.0 and hd["direction_error_max_abs_deg"] < 3.0
+    json.dumps(measures.summary, allow_nan=False)  # NaN written as null, never as NaN
+    with rc_context(STYLE):
+        figure = lab_measures_figure(recording, measures)
+    assert len(figure.axes[0].images) == 1 and len(figure.axes[1].images) == 1  # a map, its autocorrelogram
+    figure.savefig(tmp_path / "lab.png")
+
+
+def test_on_the_short_demo_drive_the_lab_measures_run_and_say_why_they_cannot_be_read(demo_results):
+    recording, _ = load_run_recording(demo_results)
+    summary = drive_measures(recording).summary
+    for name in (*GRID_POPULATIONS, "place"):
+        entry = summary["populations"][name]
+        # 60 frames of a road cover a few % of a square two spacings wide: nothing is measured, and it says so.
+        assert not entry["measured"] and entry["coverage"] < LAB_MIN_COVERAGE, name
+        assert "visited" in entry["reason"] and "a longer drive" in entry["reason"], name
+    assert (
+        not summary["populations"]["hd"]["measured"] and "heading" in summary["populations"]["hd"]["reason"]
+    )
+    assert summary["module_spacing_ratios"] == {}
+    json.dumps(summary, allow_nan=False)
+    topology, results = drive_topology(recording)
+    assert results == {} and set(topology) == {*GRID_POPULATIONS, "hd"}
+    assert all(not e["computed"] and "moving frames" in e["reason"] for e in topology.values())
+    lesioned = dataclasses.replace(recording, lesioned=(False, True, False))
+    entry = drive_measures(lesioned).summary["populations"]["grid_intermediate"]
+    assert not entry["measured"] and entry["reason"].startswith("lesioned")
+
+
+def test_the_topology_of_a_module_along_a_long_road_is_a_torus():
+    # One module, so that the test stays a few seconds (each population's topology takes ~3-10 s).
+    recording = road_recording(frames=4000, populations=("grid_dorsal",))
+    topology, results = drive_topology(recording)
+    entry = topology["grid_dorsal"]
+    assert entry["computed"] and entry["coverage"] > 0.9
+    assert entry["betti"] == [1, 2, 1] and entry["matches_expected"] and results["grid_dorsal"].is_torus
+
+
+def test_fold_coverage_and_the_frames_the_measures_drop():
+    # A straight road along x folds onto one row of the square: 1 of 10 rows, every column.
+    x = np.arange(0.0, 1000.0, 1.0)
+    coverage, per_bin = fold_coverage(np.column_stack([x, np.full_like(x, 3.0)]), 50.0, 10)
+    assert coverage == pytest.approx(0.1) and per_bin == pytest.approx(100.0)
+    recording = road_recording(frames=50, populations=("grid_dorsal",))
+    recording.position_m[10] = np.nan
+    recording.populations["grid_dorsal"][20, 3] = np.nan
+    kept = finite_frames(recording)
+    assert len(kept.time_s) == 48 and np.isfinite(kept.position_m).all()
+    assert np.allclose(np.diff(kept.time_s), ROAD_DT_S)  # uniform again, as the measures require

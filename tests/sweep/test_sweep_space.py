@@ -9,6 +9,7 @@ import pytest
 from conftest import PROJECT_ROOT
 from hippo_nav._core import HippoNavError
 from hippo_nav.cli import main
+from hippo_nav.pipeline import config_from_dict
 from hippo_nav.sweep import build_space, plan
 from hippo_nav.sweep.manifest import read_manifest, write_json_atomic
 from hippo_nav.sweep.space import config_hash, parse_seeds, parse_set, split_values
@@ -177,7 +178,7 @@ def test_the_shipped_lesion_study_is_four_conditions_by_five_seeds():
 
 
 @pytest.mark.data
-def test_the_shipped_whole_sequence_benchmark_is_the_nineteen_runs_of_the_old_script(
+def test_the_shipped_whole_sequence_benchmark_is_the_old_scripts_runs_and_the_papers_system(
     shared_data, tmp_path, monkeypatch
 ):
     monkeypatch.chdir(PROJECT_ROOT)  # the sweep file's paths are taken from the project root
@@ -185,8 +186,14 @@ def test_the_shipped_whole_sequence_benchmark_is_the_nineteen_runs_of_the_old_sc
         PROJECT_ROOT / "docs" / "sweeps" / "whole_sequences.toml", dataset={"dataset": str(tmp_path)}
     )
     runs = space.runs()
-    assert len(runs) == 19 and space.out == "runs/whole"
+    assert len(runs) == 24 and space.out == "runs/whole"
     variants = {(r.sequence, r.odometry.kind, r.pipeline_config().map.closure.value) for r in runs}
+    paper = [r for r in runs if r.pipeline_config().preset == "paper"]
+    assert sorted(r.sequence for r in paper) == ["00", "02", "05", "06", "08"]
+    for run in paper:
+        config = run.pipeline_config()
+        assert run.odometry.kind == "vo" and config.parts.view_cells == "template"
+        assert config.map.closure.value == "RatSlam" and config.injection.placement == "as_stored"
     for sequence in ("00", "02", "05", "06", "08"):
         assert {
             (sequence, "vo", "Geometric"),
@@ -203,3 +210,27 @@ def test_loader_options_reach_every_run(tmp_path):
     space = build_space(dataset={"dataset": str(tmp_path), "cameras": "color", "left_topic": "/cam0"})
     assert space.dataset.options == (("cameras", "color"), ("left_topic", "/cam0"))
     assert space.dataset.as_dict()["options"] == {"cameras": "color", "left_topic": "/cam0"}
+
+
+def test_the_shipped_paper_ladder_adds_one_engineering_change_a_step(tmp_path, monkeypatch):
+    monkeypatch.chdir(PROJECT_ROOT)
+    space = build_space(
+        PROJECT_ROOT / "docs" / "sweeps" / "paper_ladder.toml", dataset={"dataset": str(tmp_path)}
+    )
+    runs = space.runs()
+    assert len(runs) == 15 and {r.sequence for r in runs} == {"00", "05", "06"}
+    steps = []
+    for run in runs[::3]:  # each step on 00, 05 and 06, in the file's order
+        c = run.pipeline_config()
+        steps.append(
+            (c.parts.view_cells, c.view_search.near_only, c.map.closure.value, c.injection.placement)
+        )
+    assert steps == [
+        ("template", False, "RatSlam", "as_stored"),  # the paper's system
+        ("template", True, "RatSlam", "as_stored"),  # + the restricted search
+        ("template", True, "Geometric", "measured"),  # + the geometric closure
+        ("words", True, "Geometric", "measured"),  # + the word cells: the defaults
+        ("words", True, "RatSlam", "as_stored"),  # the paper's closure with the word cells
+    ]
+    # Step 4 is today's defaults exactly (the sweep's runs write no figures).
+    assert runs[9].pipeline_config() == config_from_dict({"output": {"figures": False}})

@@ -13,12 +13,15 @@ DESCRIPTION = (
     "their defaults) and give it to `hippo-nav run --config`. --check FILE reads and validates a config "
     "file as `run --config` does, without running: `FILE: valid` (an old spelling still reads, with a "
     "warning on stderr naming today's), or the one error line naming the field, exit 2. --show FILE prints "
-    "FILE's resolved config, as a run writes it into config.json. What depends on the input (a vocabulary "
+    "FILE's resolved config, as a run writes it into config.json; --preset NAME a preset's (`\"preset\": "
+    "\"paper\"` in a file lays the paper's settings under the file's own). What depends on the input (a vocabulary "
     "file, output.state_frames against the frames) is checked when a run starts (docs/pipeline.md)."
 )
 
 
 def add_arguments(config: argparse.ArgumentParser) -> None:
+    from hippo_nav.system.presets import PRESETS
+
     what = config.add_argument_group("one of").add_mutually_exclusive_group(required=True)
     what.add_argument(
         "--defaults",
@@ -30,6 +33,13 @@ def add_arguments(config: argparse.ArgumentParser) -> None:
         metavar="FILE",
         help="validate a config file as run --config reads it (fields left out: their defaults), without "
         "running: 'FILE: valid', or the error and exit 2",
+    )
+    what.add_argument(
+        "--preset",
+        metavar="NAME",
+        choices=list(PRESETS),
+        help="print a preset's resolved config as JSON (paper: the system as the paper describes it; "
+        "docs/pipeline.md, Presets)",
     )
     what.add_argument(
         "--show",
@@ -46,6 +56,9 @@ def command(args: argparse.Namespace) -> int:
         print(f"{args.check}: valid")
         return 0
     # The same JSON a run writes into its config.json: it loads back with --config to the same config.
-    config = PipelineConfig() if args.defaults else load_config(args.show)
+    if args.preset is not None:
+        config = load_config(None, args.preset)
+    else:
+        config = PipelineConfig() if args.defaults else load_config(args.show)
     print(json.dumps(resolved_config_dict(config), indent=2))
     return 0

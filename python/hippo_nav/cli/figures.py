@@ -16,8 +16,10 @@ DESCRIPTION = (
     "appearance level, on pass 0 and pass 1 (docs/render.md). With --run DIR, the networks of that `hippo-nav "
     "run` results folder, from its recording (recording.npz, module_phase.npz) without running again: rate "
     "maps of example units per grid module and of the place torus on the true positions and folded onto "
-    "each module's spacing P/k, and each module's decoded phase against the true position modulo P/k with "
-    "its circular error (PNG and PDF, and neural_measures.json; docs/pipeline.md)."
+    "each module's spacing P/k, each module's decoded phase against the true position modulo P/k with "
+    "its circular error, and the lab's measures (grid scores against a shuffle test, spacing, information, "
+    "fields; head-direction tuning) on the positions folded onto two spacings; with --topology the "
+    "persistent homology of each population too (PNG and PDF, and neural_measures.json; docs/neuro.md)."
 )
 
 
@@ -39,6 +41,12 @@ def add_arguments(figures: argparse.ArgumentParser) -> None:
         default=None,
         help="a `hippo-nav run` results folder: draw its networks' rate maps and decoded phases instead",
     )
+    figures.add_argument(
+        "--topology",
+        action="store_true",
+        help="with --run: also the persistent homology of each grid module and the ring (seconds to a "
+        "minute; needs 600 moving frames)",
+    )
 
 
 def command(args: argparse.Namespace) -> int:
@@ -46,7 +54,9 @@ def command(args: argparse.Namespace) -> int:
     from hippo_nav.io.atomic import output_folder
 
     if args.run is not None:
-        return _run_figures(Path(args.run), args.out)
+        return _run_figures(Path(args.run), args.out, args.topology)
+    if args.topology:
+        raise HippoNavError("--topology measures a run's recording: give --run DIR with it")
     out = output_folder(args.out or "runs/figures", "the PNG files")  # checked before the figures (seconds)
     try:
         if args.appearance:
@@ -62,7 +72,7 @@ def command(args: argparse.Namespace) -> int:
     return 0
 
 
-def _run_figures(run: Path, out_arg: str | None) -> int:
+def _run_figures(run: Path, out_arg: str | None, topology: bool) -> int:
     from hippo_nav._core import HippoNavError
     from hippo_nav.io.atomic import output_folder
     from hippo_nav.report.neural import load_run_recording, write_neural_figures
@@ -70,7 +80,7 @@ def _run_figures(run: Path, out_arg: str | None) -> int:
     load_run_recording(run)  # a folder without a recording is refused before any folder is made
     out = output_folder(out_arg if out_arg is not None else run / "figures", "the figures")
     try:
-        written = write_neural_figures(run, out)
+        written = write_neural_figures(run, out, topology=topology)
     except OSError as err:
         raise HippoNavError(f"{err.filename or out}: {err.strerror or err}") from None
     print(f"wrote {', '.join(p.name for p in written)} into {out}")

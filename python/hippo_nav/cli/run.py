@@ -59,11 +59,20 @@ def add_arguments(run: argparse.ArgumentParser) -> None:
 
 def _add_configuration(setup: argparse._ArgumentGroup) -> None:
     from hippo_nav.engine import MODULE_NAMES
+    from hippo_nav.system.presets import PRESETS
 
     setup.add_argument(
         "--config",
         metavar="JSON",
         help="pipeline config file (any subset of sections; the rest: defaults) (default: none, all defaults)",
+    )
+    setup.add_argument(
+        "--preset",
+        choices=list(PRESETS),
+        default=None,
+        help="start from named settings, the --config file's on top: paper = the system as the paper describes "
+        "it (template view cells, RatSLAM closure and relaxation, recalled states as stored; "
+        "`hippo-nav config --preset paper` shows it) (default: the config's own, else default)",
     )
     setup.add_argument(
         "--lesion",
@@ -154,7 +163,7 @@ def command(args: argparse.Namespace) -> int:
     if args.out is None:
         args.out = _default_out(args, kind)
     odometry = _replay(args)
-    config = load_config(args.config)
+    config = load_config(args.config, args.preset)
     if args.lesion:
         config = config.with_lesions(*args.lesion)
     if args.seed is not None:

@@ -7,6 +7,8 @@ writes the fully resolved config, which every run puts into its results folder (
 run can be repeated from its own output.
 
 Sections:
+- `preset`: the named settings laid under the file's own (`hippo_nav.system.presets`: `default`, `paper`, the
+  system as the paper describes it); whatever the file sets itself wins.
 - `seed`: the one seed of a run: where the networks' bumps start (heading code and grid phases), and
   OpenCV's RNG. The odometry does not depend on it (OpenCV's RANSAC uses its own fixed seed).
 - `overlap_front_end`: load frames and measure the odometry ahead, on worker threads (same results).
@@ -53,6 +55,7 @@ from hippo_nav.io.atomic import write_text
 from hippo_nav.io.errors import MAX_SETTINGS_FILE_BYTES, read_text
 from hippo_nav.map import ClosureMode, MapParams
 from hippo_nav.plugs import Part, PartSections
+from hippo_nav.system.presets import PRESETS, under_preset
 from hippo_nav.view_cells import DESCRIPTORS
 from hippo_nav.vo import ODOMETRIES
 
@@ -269,6 +272,11 @@ class PipelineConfig(PartSections):
 
     registries: ClassVar[tuple[Any, ...]] = (_odometries, _descriptors)
 
+    preset: str = Field(
+        "default",
+        description="the named settings laid under this config (`hippo_nav.system.presets`: default, paper); "
+        "the config's own settings win",
+    )
     seed: int = Field(0, ge=0, le=2**31 - 1, description="one seed for every random choice of the run")
     overlap_front_end: bool = Field(
         True,
@@ -286,13 +294,24 @@ class PipelineConfig(PartSections):
     limits: MotionLimits = Field(default_factory=MotionLimits)
     output: OutputConfig = Field(default_factory=OutputConfig)
 
+    @field_validator("preset")
+    @classmethod
+    def _known_preset(cls, name: str) -> str:
+        if name not in PRESETS:
+            raise ValueError(f"unknown {name!r}; choose from {', '.join(PRESETS)}")
+        return name
+
     @model_validator(mode="before")
     @classmethod
     def _read_flat_closure_keys(cls, data: object) -> object:
-        """Configs written before the closure proposers had sections of their own (module doc of
-        `hippo_nav.closure.config`) are read as they meant, with a warning naming each key's new place."""
+        """The preset's settings laid under the config's own (`hippo_nav.system.presets`; an unknown name is
+        left to the `preset` field's error). Configs written before the closure proposers had sections of
+        their own (module doc of `hippo_nav.closure.config`) are read as they meant, with a warning naming each
+        key's new place."""
         if not isinstance(data, dict):
             return data
+        if isinstance(data.get("preset"), str) and data["preset"] in PRESETS:
+            data = under_preset(data)
         parts, closure = data.get("parts", {}), data.get("closure", {})
         if not isinstance(parts, dict) or not isinstance(closure, dict):
             return data
@@ -441,10 +460,22 @@ def config_from_dict(data: dict[str, Any], source: str = "config") -> PipelineCo
         raise HippoNavError(f"{source}: invalid config: {_describe(err)}") from None
 
 
-def load_config(path: str | Path | None) -> PipelineConfig:
-    """Read a JSON config file (None: all defaults). Unknown keys and bad values are errors."""
-    if path is None:
-        return PipelineConfig()
+def load_config(path: str | Path | None, preset: str | None = None) -> PipelineConfig:
+    """Read a JSON config file (None: all defaults) on top of a preset (`hippo_nav.system.presets`; None: the
+    file's own `preset`, or none). Unknown keys and bad values are errors; so is a file naming another preset."""
+    data = {} if path is None else _read_config_file(Path(path))
+    source = "config" if path is None else str(path)
+    if preset is not None:
+        named = data.get("preset", preset)
+        if named != preset:
+            raise HippoNavError(
+                f"{source}: names preset {_shown(named)}, and --preset {preset} was given; give one of them"
+            )
+        data = {"preset": preset, **data}
+    return config_from_dict(data, source)
+
+
+def _read_config_file(path: Path) -> dict[str, Any]:
     path = Path(path)
     # A folder, a FIFO or a device is refused before it is opened: opening a FIFO with no writer would wait
     # for ever.
@@ -476,7 +507,7 @@ def load_config(path: str | Path | None) -> PipelineConfig:
         raise HippoNavError(
             f"{path}: a config file holds one JSON object of sections, not a JSON {_json_kind(data)}"
         )
-    return config_from_dict(data, str(path))
+    return data
 
 
 def _json_kind(value: object) -> str:
