@@ -8,6 +8,7 @@
 | `views.npz` | the view cells (word features or templates) and what each recalls: its stored network state (`CompactView` codes), the vertex it was made at and its offset from it, the odometer when made |
 | `keyframes.npz` | the closure proposer's stereo keyframes, one per vertex |
 | `state.npz` | where the run stopped: the networks' full state, the active view cell, the last odometry pose — what a session continuing with the next frames needs (`SlamSystem(..., memory=..., resume=True)`) |
+| `truth.npz` | only when the run had a ground truth: where each vertex was made and every frame's position, in the dataset's own ground-truth frame, so a later session on the same sequence scores its closures onto this map against the truth; never read by the system |
 | `memory.json` | format and version, the config that made the memory, the camera, the VO's disparity offset as the run ended, and every file's size and SHA-256 |
 
 The manifest is written last, so a folder with a manifest is complete; loading checks the manifest, then every
@@ -39,6 +40,7 @@ from hippo_nav.io.errors import os_error_words, read_bytes
 __all__ = [
     "FORMAT",
     "MEMORY_FOLDER",
+    "TRUTH_FILE",
     "VERSION",
     "SavedMemory",
     "SavedMemoryError",
@@ -58,6 +60,7 @@ MANIFEST = "memory.json"  # not manifest.json: a sweep's run folder has one of t
 _MAX_FILE_BYTES = 8 * 2**30  # a memory of a very long run; more is not a memory this package wrote
 _MAX_MANIFEST_BYTES = 4 * 2**20
 _ARRAY_FILES = ("views.npz", "keyframes.npz", "state.npz")
+TRUTH_FILE = "truth.npz"  # optional: a run without ground truth has none
 
 
 class SavedMemoryError(HippoNavError):
@@ -78,6 +81,8 @@ class SavedMemory:
     state: dict[str, np.ndarray]
     info: dict[str, Any] = field(default_factory=dict)
     folder: Path | None = None
+    # For scoring only (`truth.npz`, `hippo_nav.pipeline.truth`): empty when the run had no ground truth.
+    truth: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 def stack_ragged(parts: list[np.ndarray], columns: int, dtype: Any) -> np.ndarray:
@@ -130,6 +135,8 @@ def write_memory(memory: SavedMemory, folder: str | Path) -> Path:
         # defaults); compressed it is a small fraction of that.
         "state.npz": _npz_bytes(memory.state, compressed=True),
     }
+    if memory.truth:
+        payloads[TRUTH_FILE] = _npz_bytes(memory.truth, compressed=True)
     with atomic.atomic_folder(folder) as staging:
         files = {}
         for name, data in payloads.items():
@@ -172,7 +179,7 @@ def read_memory(path: str | Path) -> SavedMemory:
             "hippo_nav that wrote it",
         )
     files = manifest.get("files")
-    if not isinstance(files, dict) or set(files) != {"map.bin", *_ARRAY_FILES}:
+    if not isinstance(files, dict) or set(files) - {TRUTH_FILE} != {"map.bin", *_ARRAY_FILES}:
         raise _fail(folder, "memory.json does not list the memory's files; it is corrupted")
     _check_manifest(folder, manifest)
     data: dict[str, bytes] = {}
@@ -193,8 +200,8 @@ def read_memory(path: str | Path) -> SavedMemory:
                 folder, f"{name} does not match its checksum: it is corrupted; restore it from a backup"
             )
         data[name] = blob
-    arrays = {}
-    for name in _ARRAY_FILES:
+    arrays: dict[str, dict[str, np.ndarray]] = {TRUTH_FILE: {}}
+    for name in (*_ARRAY_FILES, *([TRUTH_FILE] if TRUTH_FILE in data else [])):
         try:
             with np.load(io.BytesIO(data[name]), allow_pickle=False) as npz:
                 arrays[name] = {k: npz[k] for k in npz.files}
@@ -203,12 +210,18 @@ def read_memory(path: str | Path) -> SavedMemory:
             raise _fail(folder, f"{name} is not a readable array file ({why})") from None
     info = {k: v for k, v in manifest.items() if k not in ("format", "version", "files")}
     return SavedMemory(
-        data["map.bin"], arrays["views.npz"], arrays["keyframes.npz"], arrays["state.npz"], info, folder
+        data["map.bin"],
+        arrays["views.npz"],
+        arrays["keyframes.npz"],
+        arrays["state.npz"],
+        info,
+        folder,
+        arrays[TRUTH_FILE],
     )
 
 
 _SHA256_HEX = frozenset("0123456789abcdef")
-_INFO_OBJECTS = ("depends_on", "config", "counts", "odometry")
+_INFO_OBJECTS = ("depends_on", "config", "counts", "odometry", "truth")
 
 
 def _check_manifest(folder: Path, manifest: dict[str, Any]) -> None:

@@ -66,6 +66,7 @@ from hippo_nav.map import ExperienceMap
 from hippo_nav.memory import MEMORY_FOLDER, SavedMemory, write_memory
 from hippo_nav.metrics import KITTI_SEGMENT_LENGTHS_M, ate_rmse, relative_errors_kitti, trajectory_distances_m
 from hippo_nav.pipeline.records import RunRecord, RunResult
+from hippo_nav.pipeline.truth import LoadedTruth
 from hippo_nav.system.config import PipelineConfig, resolved_config_dict
 from hippo_nav.system.records import STAGES
 
@@ -314,32 +315,47 @@ def trajectory_errors(gt: np.ndarray, estimates: dict[str, np.ndarray]) -> dict[
     return out
 
 
-def closure_quality(gt: np.ndarray, record: RunRecord, min_separation_m: float) -> dict[str, Any]:
-    """Precision and recall of the run's loop closures against ground truth (module doc)."""
+def closure_quality(
+    gt: np.ndarray, record: RunRecord, min_separation_m: float, loaded: LoadedTruth | None = None
+) -> dict[str, Any]:
+    """Precision and recall of the run's loop closures against ground truth (module doc). `loaded`: the truth
+    of the map the run started inside (`pipeline.truth`): closures onto its vertices are scored too, and a
+    frame near where an earlier session went is a revisit."""
     positions = gt[:, :3, 3]
     path_m = trajectory_distances_m(gt)
     closures = [(p, c) for p, c in enumerate(record.column("loop_closure")) if c is not None]
     true_frames: list[int] = []
     errors_m: list[float] = []
+    onto_loaded = [0, 0]  # closures onto a loaded vertex scored, and true
     for position, (_, target) in closures:
         made = record.vertex_position.get(int(target))
-        if made is None:
+        if made is not None:
+            there = positions[made]
+        elif loaded is not None and 0 <= int(target) < len(loaded.vertex_position_m):
+            there = loaded.vertex_position_m[int(target)]
+            if not np.isfinite(there).all():
+                continue
+        else:
             continue
-        distance = float(np.linalg.norm(positions[position] - positions[made]))
+        distance = float(np.linalg.norm(positions[position] - there))
         errors_m.append(distance)
+        if made is None:
+            onto_loaded[0] += 1
+            onto_loaded[1] += distance < CLOSURE_TRUE_M
         if distance < CLOSURE_TRUE_M:
             true_frames.append(position)
-    revisit = np.zeros(len(gt), dtype=bool)
-    chunk = 512
-    for lo in range(0, len(gt), chunk):
-        d = np.linalg.norm(positions[lo : lo + chunk, None, :] - positions[None, :, :], axis=-1)
-        earlier = path_m[None, :] <= path_m[lo : lo + chunk, None] - min_separation_m
-        revisit[lo : lo + chunk] = ((d < CLOSURE_TRUE_M) & earlier).any(axis=1)
+    revisit = _revisits(positions, path_m, min_separation_m, loaded)
     covered = np.zeros(len(gt), dtype=bool)
     for position in true_frames:
         covered |= np.abs(path_m - path_m[position]) <= CLOSURE_COVER_M
     n_revisit = int(revisit.sum())
+    scored_loaded = (
+        {}
+        if loaded is None
+        else {"onto_loaded_map": {"closures": onto_loaded[0], "true_closures": onto_loaded[1]}}
+    )
     return {
+        **scored_loaded,
         "closures": len(closures),
         "true_closures": len(true_frames),
         "false_closures": len(errors_m) - len(true_frames),
@@ -350,6 +366,25 @@ def closure_quality(gt: np.ndarray, record: RunRecord, min_separation_m: float) 
         "true_distance_m": CLOSURE_TRUE_M,
         "cover_m": CLOSURE_COVER_M,
     }
+
+
+def _revisits(
+    positions: np.ndarray, path_m: np.ndarray, min_separation_m: float, loaded: LoadedTruth | None
+) -> np.ndarray:
+    """Frames within `CLOSURE_TRUE_M` of where the run went at least `min_separation_m` of path earlier, or
+    of where an earlier session of the loaded map went (another day: no separation needed)."""
+    revisit = np.zeros(len(positions), dtype=bool)
+    earlier_days = np.zeros((0, 3)) if loaded is None else loaded.path_position_m
+    chunk = 512
+    for lo in range(0, len(positions), chunk):
+        d = np.linalg.norm(positions[lo : lo + chunk, None, :] - positions[None, :, :], axis=-1)
+        earlier = path_m[None, :] <= path_m[lo : lo + chunk, None] - min_separation_m
+        revisit[lo : lo + chunk] = ((d < CLOSURE_TRUE_M) & earlier).any(axis=1)
+        for start in range(0, len(earlier_days), chunk):
+            there = earlier_days[None, start : start + chunk, :]
+            near = np.linalg.norm(positions[lo : lo + chunk, None, :] - there, axis=-1) < CLOSURE_TRUE_M
+            revisit[lo : lo + chunk] |= near.any(axis=1)
+    return revisit
 
 
 def _peak_rss_mb() -> float:
@@ -415,6 +450,8 @@ class RunFacts:
     missing_frames: int
     frames_without_timestamp: int
     stereo_fault: str | None = None  # the odometry's verdict on the stereo pair ("swapped", "unrectified", …)
+    loaded_truth: LoadedTruth | None = None  # the loaded map's truth (`pipeline.truth`), when comparable
+    loaded_truth_note: str | None = None  # why a loaded map's closures go unscored
 
 
 def evaluate(
@@ -486,8 +523,10 @@ def evaluate(
         metrics["closure_quality"] = _guarded(
             "closure_quality",
             unavailable,
-            lambda: closure_quality(gt, record, facts.min_loop_separation_m),
+            lambda: closure_quality(gt, record, facts.min_loop_separation_m, facts.loaded_truth),
         )
+        if facts.loaded_truth_note is not None and metrics["closure_quality"] is not None:
+            metrics["closure_quality"]["onto_loaded_map"] = {"unscored": facts.loaded_truth_note}
     if unavailable:
         metrics["unavailable"] = unavailable
     return metrics

@@ -42,6 +42,7 @@ from hippo_nav.pipeline.frontend import (
 from hippo_nav.pipeline.observers import FrameEvent, Observer, RunInfo
 from hippo_nav.pipeline.records import RunRecord, RunRecorder, RunResult
 from hippo_nav.pipeline.results import RunFacts
+from hippo_nav.pipeline.truth import loaded_truth, truth_to_save
 from hippo_nav.system import parts
 from hippo_nav.system.config import PipelineConfig
 from hippo_nav.system.records import StageTimer
@@ -84,6 +85,7 @@ class Pipeline:
         self.progress = progress
         self.extras = DatasetExtras.of(dataset)
         _check_time_unit(dataset)
+        self.memory = memory  # the map this run starts inside, kept for scoring (`pipeline.truth`)
         self.system = SlamSystem(
             dataset.calibration,
             self.config,
@@ -253,6 +255,7 @@ class Pipeline:
     def _facts(self) -> RunFacts:
         odometry = OdometryExtras.of(self.odometry)
         closure = self.system.closure
+        truth, truth_note = loaded_truth(self.memory, self.dataset_name, self._ground_truth())
         return RunFacts(
             frames_requested=len(self.dataset),
             note=self.extras.note,
@@ -269,6 +272,8 @@ class Pipeline:
             stereo_fault=odometry.stereo_fault,
             missing_frames=len(self.extras.missing_frames),
             frames_without_timestamp=self.extras.frames_without_timestamp,
+            loaded_truth=truth,
+            loaded_truth_note=truth_note,
         )
 
     def _finish(
@@ -356,7 +361,17 @@ class Pipeline:
             # The rig's stereo correction as this run ended (found by the VO's self-calibration): a later
             # session with the same cameras starts from it (`_with_saved_rig`).
             memory.info["odometry"] = {"disparity_offset_px": offset_px}
+        truth = truth_to_save(
+            self.memory, self.dataset_name, self._ground_truth(), self.record, len(self.system.map)
+        )
+        if truth is not None:
+            memory.truth, memory.info["truth"] = truth
         return memory
+
+    def _ground_truth(self) -> np.ndarray | None:
+        """The dataset's ground truth of the frames processed, in its own frame (not rebased)."""
+        gt = self.dataset.ground_truth()
+        return None if gt is None else np.asarray(gt)[: len(self.record)]
 
     @contextlib.contextmanager
     def _progress_bar(self) -> Iterator[Any]:
