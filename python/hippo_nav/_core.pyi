@@ -40,6 +40,7 @@ __all__ = [
     "find_bumps",
     "fuse_modules",
     "grid_recurrent_input_check",
+    "hamming_ratio_matches",
 ]
 
 __version__: str
@@ -143,6 +144,9 @@ def _refine_matches(
     max_iterations: int = 5,
     max_shift_px: float = 1.0,
 ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_]]: ...
+def hamming_ratio_matches(
+    query: npt.NDArray[np.uint8], stored: npt.NDArray[np.uint8], ratio: float
+) -> tuple[npt.NDArray[np.int64], npt.NDArray[np.int64]]: ...
 
 @final
 class _Vocabulary:

@@ -107,3 +107,40 @@ def test_restricted_match(benchmark, restricted_stores, n: int, query: str, sear
         stored=n, query=query, candidates=len(subset) if candidates is not None else n
     )
     benchmark(cells.best_match, q, candidates)
+
+
+@pytest.fixture(scope="module")
+def word_descriptors() -> tuple[np.ndarray, np.ndarray]:
+    """ORB descriptors (500 each, the word cells' default) of a textured image and of the same image shifted
+    8 px with noise: a revisit's verification."""
+    rng = np.random.default_rng(3)
+    noise = cv2.GaussianBlur(rng.normal(size=(400, 1200)).astype(np.float32), (0, 0), 2.0)
+    image = np.clip(128 + 50 * noise / noise.std(), 0, 255).astype(np.uint8)
+    shifted = np.clip(np.roll(image, 8, axis=1) + rng.normal(scale=4, size=image.shape), 0, 255).astype(
+        np.uint8
+    )
+    orb = cv2.ORB_create(500)
+    return orb.detectAndCompute(image, None)[1], orb.detectAndCompute(shifted, None)[1]
+
+
+def _opencv_ratio_matches(query: np.ndarray, stored: np.ndarray, ratio: float) -> tuple[list[int], list[int]]:
+    """What the word cells' verification did before: OpenCV's knnMatch, the ratio test in Python."""
+    pairs = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(query, stored, k=2)
+    good = [p[0] for p in pairs if len(p) == 2 and p[0].distance < ratio * p[1].distance]
+    return [m.queryIdx for m in good], [m.trainIdx for m in good]
+
+
+@pytest.mark.parametrize("how", ["opencv_knn", "rust"])
+def test_word_ratio_matches(benchmark, word_descriptors, how: str) -> None:
+    """Group `word_matches`: the word cells' verification matching (500 × 500 descriptors, ratio 0.8), OpenCV's
+    knnMatch with the ratio test in Python against `hamming_ratio_matches`; both give the same matches
+    (checked before timing)."""
+    query, stored = word_descriptors
+    expected = _opencv_ratio_matches(query, stored, 0.8)
+    got = _core.hamming_ratio_matches(query, stored, 0.8)
+    assert (got[0].tolist(), got[1].tolist()) == expected and len(expected[0]) > 100
+    benchmark.group = "word_matches"
+    if how == "rust":
+        benchmark(_core.hamming_ratio_matches, query, stored, 0.8)
+    else:
+        benchmark(_opencv_ratio_matches, query, stored, 0.8)

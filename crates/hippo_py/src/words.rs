@@ -4,7 +4,9 @@
 //! float64 pixel positions (the Python wrapper converts). Training, bags and queries run with the interpreter released.
 use crate::convert::{candidate_ids, rows_f64, rows_u8, to_numpy, CandidatesArg};
 use crate::errors::to_py_err;
-use hippo_views::words::{BowVector, Descriptor, TrainingParams, Vocabulary, WordCells};
+use hippo_views::words::{
+    ratio_test_matches, BowVector, Descriptor, TrainingParams, Vocabulary, WordCells,
+};
 use numpy::{IntoPyArray, PyArray1, PyArrayDyn, PyReadonlyArrayDyn};
 use pyo3::prelude::*;
 use pyo3::types::PyBytes;
@@ -229,7 +231,33 @@ impl PyWordCells {
     }
 }
 
+/// Brute-force Hamming matches of `query` against `stored` ((n, 32) uint8 each) with Lowe's ratio test:
+/// (query indices, stored indices) as int64 arrays, in query order; what OpenCV's `knnMatch(k=2)` and the
+/// ratio test give (`hippo_views::words::ratio_test_matches`), with the interpreter released.
+#[pyfunction]
+#[allow(clippy::type_complexity)]
+fn hamming_ratio_matches<'py>(
+    py: Python<'py>,
+    query: PyReadonlyArrayDyn<'py, u8>,
+    stored: PyReadonlyArrayDyn<'py, u8>,
+    ratio: f64,
+) -> PyResult<(Bound<'py, PyArray1<i64>>, Bound<'py, PyArray1<i64>>)> {
+    if !(ratio.is_finite() && ratio > 0.0 && ratio <= 1.0) {
+        return Err(crate::errors::HippoNavError::new_err(format!(
+            "ratio {ratio}: give Lowe's ratio in (0, 1]"
+        )));
+    }
+    let (query, stored) = (descriptors(&query)?, descriptors(&stored)?);
+    let pairs = py.detach(|| ratio_test_matches(&query, &stored, ratio));
+    let (q, s): (Vec<i64>, Vec<i64>) = pairs
+        .iter()
+        .map(|&(q, s)| (i64::from(q), i64::from(s)))
+        .unzip();
+    Ok((q.into_pyarray(py), s.into_pyarray(py)))
+}
+
 pub fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_function(wrap_pyfunction!(hamming_ratio_matches, m)?)?;
     m.add_class::<PyBag>()?;
     m.add_class::<PyVocabulary>()?;
     m.add_class::<PyWordCells>()?;

@@ -4,6 +4,7 @@
 // A benchmark: a panic is the run failing (library code never panics on data, see Cargo.toml).
 #![allow(clippy::panic)]
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
+use hippo_views::words::{ratio_test_matches, Descriptor};
 use hippo_views::{ViewCellParams, ViewCells};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -54,5 +55,25 @@ fn bench_matching(c: &mut Criterion) {
     group.finish();
 }
 
-criterion_group!(benches, bench_matching);
+/// The word cells' verification matching: 500 query descriptors (the default `orb_features`) against a
+/// stored view's 500, Lowe's ratio test. What it replaced (OpenCV's `knnMatch` and a ratio test in Python) is
+/// measured against it in the same run by `tests/benchmarks/test_word_matching_bench.py`.
+fn bench_ratio_matches(c: &mut Criterion) {
+    let mut rng = ChaCha8Rng::seed_from_u64(11);
+    let mut random = |n: usize| -> Vec<Descriptor> {
+        (0..n)
+            .map(|_| {
+                let mut d = [0u8; 32];
+                rng.fill(&mut d[..]);
+                d
+            })
+            .collect()
+    };
+    let (query, stored) = (random(500), random(500));
+    c.bench_function("word_ratio_matches_500x500", |b| {
+        b.iter(|| black_box(ratio_test_matches(&query, &stored, 0.8)))
+    });
+}
+
+criterion_group!(benches, bench_matching, bench_ratio_matches);
 criterion_main!(benches);

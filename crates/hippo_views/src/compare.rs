@@ -175,7 +175,8 @@ pub(crate) fn denominator(a_sum: &Summary, b_sum: &Summary, shift: isize) -> f32
 /// baseline SSE2 build). The result is bit-identical either way: the order of every add is fixed by the
 /// code, the instruction set only changes how many lanes are added at once.
 #[inline]
-// The only unsafe code of the workspace (denied elsewhere): calling the AVX2 build after the CPU check.
+// Unsafe code is denied in the workspace but here and in `words::ratio_test_matches`: calling the AVX2
+// build after the CPU check.
 #[allow(unsafe_code)]
 pub(crate) fn numerator(
     a: &[f32],
