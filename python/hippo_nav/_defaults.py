@@ -14,6 +14,7 @@ setting's path, before anything reaches Rust.
 
 from __future__ import annotations
 
+import copy
 import json
 import types
 from collections.abc import Callable
@@ -53,6 +54,18 @@ def dotted(data: dict[str, Any], prefix: str = "") -> dict[str, Any]:
         else:
             flat[f"{prefix}{key}"] = value
     return flat
+
+
+def merged(base: dict[str, Any], top: dict[str, Any]) -> dict[str, Any]:
+    """`top` laid over `base`, section by section: a key `top` sets wins, the rest of `base`'s section stays
+    (a preset under a config file, a sweep's overrides over its base config). Both are left unchanged."""
+    out = copy.deepcopy(base)
+    for key, value in top.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = merged(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
 
 
 def move_keys(

@@ -80,6 +80,7 @@ import dataclasses
 import json
 import math
 import re
+import textwrap
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -847,14 +848,9 @@ def lab_measures_figure(recording: Recording, measures: DriveMeasures) -> Figure
 
 
 def _wrap_words(text: str, width: int) -> list[str]:
-    lines: list[str] = []
-    # A unit stays with its number: "5 %" never breaks between them (a no-break space).
-    for word in re.sub(r"(\d) (%|m\b)", "\\1\u00a0\\2", text).split(" "):
-        if lines and len(lines[-1]) + 1 + len(word) <= width:
-            lines[-1] += " " + word
-        else:
-            lines.append(word)
-    return lines
+    # A unit stays with its number: "5 %" never breaks between them (textwrap does not split at a no-break
+    # space).
+    return textwrap.wrap(re.sub(r"(\d) (%|m\b)", "\\1\u00a0\\2", text), width, break_on_hyphens=False)
 
 
 def _draw_folded_map(ax: Axes, maps: lab.RateMaps, unit: lab.SpatialUnit, title: str) -> None:

@@ -46,7 +46,7 @@ from pathlib import Path
 from typing import Any
 
 from hippo_nav._core import HippoNavError
-from hippo_nav._defaults import dotted
+from hippo_nav._defaults import dotted, merged
 from hippo_nav.io import read_text
 from hippo_nav.system.config import PipelineConfig, config_from_dict, load_config, resolved_config_dict
 
@@ -695,10 +695,10 @@ def build_space(
             raise HippoNavError(
                 f"{file}: config is a table of config sections (config_file: a JSON file's path)"
             )
-        base = _merged(base, inline)
+        base = merged(base, inline)
         config_from_dict(base, f"{file}: [config]")
     if no_figures:
-        base = _merged(base, {"output": {"figures": False}})
+        base = merged(base, {"output": {"figures": False}})
 
     command_line: dict[str, Any] = {}
     if sets:
@@ -732,16 +732,6 @@ def _space_tables(data: dict[str, Any]) -> list[dict[str, Any]]:
     if not isinstance(tables, list) or not all(isinstance(t, dict) for t in tables):
         raise HippoNavError("space: give a list of tables ([[space]] in TOML, a list of mappings in YAML)")
     return tables
-
-
-def _merged(base: dict[str, Any], extra: dict[str, Any]) -> dict[str, Any]:
-    out = copy.deepcopy(base)
-    for key, value in extra.items():
-        if isinstance(value, dict) and isinstance(out.get(key), dict):
-            out[key] = _merged(out[key], value)
-        else:
-            out[key] = copy.deepcopy(value)
-    return out
 
 
 def _absolute(path: Any, what: str = "path") -> str | None:

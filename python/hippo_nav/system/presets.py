@@ -24,6 +24,7 @@ import copy
 from typing import Any
 
 from hippo_nav._core import HippoNavError
+from hippo_nav._defaults import merged
 
 PRESETS: dict[str, dict[str, Any]] = {
     "default": {},
@@ -53,15 +54,7 @@ def under_preset(data: dict[str, Any]) -> dict[str, Any]:
     key inside each section. Without a `preset` key, `data` unchanged."""
     if "preset" not in data:
         return data
-    return _merged(preset_settings(data["preset"]), data)
-
-
-def _merged(base: dict[str, Any], top: dict[str, Any]) -> dict[str, Any]:
-    merged = dict(base)
-    for key, value in top.items():
-        below = merged.get(key)
-        merged[key] = _merged(below, value) if isinstance(below, dict) and isinstance(value, dict) else value
-    return merged
+    return merged(preset_settings(data["preset"]), data)
 
 
 __all__ = ["PRESETS", "preset_settings", "under_preset"]
