@@ -348,6 +348,9 @@ def _summary(metrics: dict) -> dict:
     for name, entry in (metrics.get("errors") or {}).items():
         if isinstance(entry, dict) and "ate_2d_m" in entry:
             summary[f"ate_2d_m_{name}"] = entry["ate_2d_m"]
+    sessions = metrics.get("sessions") or {}
+    if "ate_2d_m" in sessions:  # every session's frames on this run's map (docs/memory.md)
+        summary["ate_2d_m_all_sessions"] = sessions["ate_2d_m"]
     timing = metrics.get("timing", {})
     if timing.get("frames_per_s") is not None:
         summary["frames_per_s"] = timing["frames_per_s"]

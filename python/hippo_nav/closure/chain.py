@@ -47,6 +47,10 @@ class ClosureChain:
     def names(self) -> list[str]:
         return [name for name, _ in self.proposers]
 
+    def proposer(self, name: str) -> ClosureProposer | None:
+        """The proposer configured under `name`, or None when the chain has none of that name."""
+        return next((proposer for own, proposer in self.proposers if own == name), None)
+
     def propose(
         self,
         frame: StereoFrame,

@@ -15,8 +15,10 @@ from pydantic import ConfigDict, Field
 
 from hippo_nav._defaults import ConfigSection
 from hippo_nav.closure.base import NO_ATTEMPT, ClosureAttempt, ClosureContext, ProposedClosure
+from hippo_nav.closure.retrace import RetraceConfig, RetraceReport, retrace_lost_stretch
+from hippo_nav.closure.store import KeyframeStore
 from hippo_nav.geometry import se2_between, se2_compose
-from hippo_nav.map import MapFrameOutcome
+from hippo_nav.map import ExperienceMap, MapFrameOutcome
 
 __all__ = ["RelocalisationConfig", "RelocalisationProposer"]
 
@@ -50,6 +52,7 @@ class RelocalisationConfig(ConfigSection):
         1.0, gt=0.0, description="agreeing measurements put the agent within this distance of each other"
     )
     agreement_rad: float = Field(0.05, gt=0.0, description="… and within this heading of each other")
+    retrace: RetraceConfig = Field(default_factory=RetraceConfig)
 
 
 class RelocalisationProposer:
@@ -59,8 +62,12 @@ class RelocalisationProposer:
         self.config = config if config is not None else RelocalisationConfig()
         # Hypotheses: (odometer m, the session's pose in the loaded map (x, y, yaw)).
         self._hypotheses: list[tuple[float, np.ndarray]] = []
+        # This frame's proposed join: the map, the store and the session's first vertex, for the retrace.
+        self._joining: tuple[ExperienceMap, KeyframeStore, int] | None = None
+        self.retraced: RetraceReport | None = None  # what the retrace at the join did
 
     def propose(self, context: ClosureContext) -> ClosureAttempt:
+        self._joining = None
         experience_map = context.experience_map
         if experience_map.unjoined_from is None:  # joined (or never lost): nothing to relocalise
             return NO_ATTEMPT
@@ -103,6 +110,7 @@ class RelocalisationProposer:
             if agreeing + 1 < cfg.confirmations:
                 return ClosureAttempt(None, "relocalisation_unconfirmed")
             closure = ProposedClosure(vertex, measurement.agent_from_target, measurement.information)
+            self._joining = (experience_map, store, first_session_vertex)
             return ClosureAttempt(closure, "measured")
         return ClosureAttempt(None, why)
 
@@ -115,7 +123,14 @@ class RelocalisationProposer:
         )
 
     def after_map(self, outcome: MapFrameOutcome) -> None:
-        pass
+        """The map joined the session with this proposer's closure: retrace the lost stretch."""
+        joining, self._joining = self._joining, None
+        if joining is None or not outcome.relocalized or outcome.vertex is None:
+            return
+        experience_map, store, first = joining
+        self.retraced = retrace_lost_stretch(
+            experience_map, store, first, int(outcome.vertex), self.config.retrace
+        )
 
     # Persistent: the hypotheses not yet confirmed (a resumed run that was still lost keeps them).
     def depends_on(self) -> dict[str, object]:

@@ -8,6 +8,7 @@
 | `views.npz` | the view cells (word features or templates) and what each recalls: its stored network state (`CompactView` codes), the vertex it was made at and its offset from it, the odometer when made |
 | `keyframes.npz` | the closure proposer's stereo keyframes, one per vertex |
 | `state.npz` | where the run stopped: the networks' full state, the active view cell, the last odometry pose — what a session continuing with the next frames needs (`SlamSystem(..., memory=..., resume=True)`) |
+| `path.npz` | every frame of every session: its vertex and offset from it (and session, frame index, time), so a later session places the earlier sessions' frames again on the map it corrected (`hippo_nav.pipeline.sessions`); absent from memories written before it existed |
 | `truth.npz` | only when the run had a ground truth: where each vertex was made and every frame's position, in the dataset's own ground-truth frame, so a later session on the same sequence scores its closures onto this map against the truth; never read by the system |
 | `memory.json` | format and version, the config that made the memory, the camera, the VO's disparity offset as the run ended, and every file's size and SHA-256 |
 
@@ -40,6 +41,7 @@ from hippo_nav.io.errors import os_error_words, read_bytes
 __all__ = [
     "FORMAT",
     "MEMORY_FOLDER",
+    "PATH_FILE",
     "TRUTH_FILE",
     "VERSION",
     "SavedMemory",
@@ -61,6 +63,8 @@ _MAX_FILE_BYTES = 8 * 2**30  # a memory of a very long run; more is not a memory
 _MAX_MANIFEST_BYTES = 4 * 2**20
 _ARRAY_FILES = ("views.npz", "keyframes.npz", "state.npz")
 TRUTH_FILE = "truth.npz"  # optional: a run without ground truth has none
+PATH_FILE = "path.npz"  # optional: memories written before it existed have none
+_OPTIONAL_FILES = (PATH_FILE, TRUTH_FILE)
 
 
 class SavedMemoryError(HippoNavError):
@@ -83,6 +87,8 @@ class SavedMemory:
     folder: Path | None = None
     # For scoring only (`truth.npz`, `hippo_nav.pipeline.truth`): empty when the run had no ground truth.
     truth: dict[str, np.ndarray] = field(default_factory=dict)
+    # Every session's frames as vertex + offset (`path.npz`, `hippo_nav.pipeline.sessions`); empty: none kept.
+    path: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 def stack_ragged(parts: list[np.ndarray], columns: int, dtype: Any) -> np.ndarray:
@@ -135,6 +141,8 @@ def write_memory(memory: SavedMemory, folder: str | Path) -> Path:
         # defaults); compressed it is a small fraction of that.
         "state.npz": _npz_bytes(memory.state, compressed=True),
     }
+    if memory.path:
+        payloads[PATH_FILE] = _npz_bytes(memory.path, compressed=True)
     if memory.truth:
         payloads[TRUTH_FILE] = _npz_bytes(memory.truth, compressed=True)
     with atomic.atomic_folder(folder) as staging:
@@ -179,7 +187,7 @@ def read_memory(path: str | Path) -> SavedMemory:
             "hippo_nav that wrote it",
         )
     files = manifest.get("files")
-    if not isinstance(files, dict) or set(files) - {TRUTH_FILE} != {"map.bin", *_ARRAY_FILES}:
+    if not isinstance(files, dict) or set(files) - set(_OPTIONAL_FILES) != {"map.bin", *_ARRAY_FILES}:
         raise _fail(folder, "memory.json does not list the memory's files; it is corrupted")
     _check_manifest(folder, manifest)
     data: dict[str, bytes] = {}
@@ -200,8 +208,8 @@ def read_memory(path: str | Path) -> SavedMemory:
                 folder, f"{name} does not match its checksum: it is corrupted; restore it from a backup"
             )
         data[name] = blob
-    arrays: dict[str, dict[str, np.ndarray]] = {TRUTH_FILE: {}}
-    for name in (*_ARRAY_FILES, *([TRUTH_FILE] if TRUTH_FILE in data else [])):
+    arrays: dict[str, dict[str, np.ndarray]] = {name: {} for name in _OPTIONAL_FILES}
+    for name in (*_ARRAY_FILES, *(name for name in _OPTIONAL_FILES if name in data)):
         try:
             with np.load(io.BytesIO(data[name]), allow_pickle=False) as npz:
                 arrays[name] = {k: npz[k] for k in npz.files}
@@ -217,6 +225,7 @@ def read_memory(path: str | Path) -> SavedMemory:
         info,
         folder,
         arrays[TRUTH_FILE],
+        arrays[PATH_FILE],
     )
 
 

@@ -16,13 +16,16 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from hippo_nav.engine import N_MODULES, SpatialMemory, SpatialReadout
 from hippo_nav.recording.session import GRID_POPULATIONS
 from hippo_nav.system.records import STAGES, FrameRecord
+
+if TYPE_CHECKING:
+    from hippo_nav.pipeline.sessions import SessionsTrack
 
 UNITS_PER_AXIS = 8
 """Units kept per torus axis of every network (`RunRecorder`): 64 per population, a few MB over a
@@ -98,6 +101,8 @@ class RunResult:
     map_export: dict[str, np.ndarray]
     interrupted: bool
     out_dir: Path | None = None
+    # A session inside a loaded map: every session's frames on this run's corrected map (`pipeline.sessions`).
+    sessions: SessionsTrack | None = None
 
     @property
     def estimates(self) -> dict[str, np.ndarray]:

@@ -11,6 +11,7 @@ trajectories first, then metrics, then figures, so a failing figure never costs 
 | `trajectory_corrected.{kitti,tum}.txt` | the final corrected map at every frame: vertex pose ∘ the frame's offset |
 | `trajectory_neural.{kitti,tum}.txt` | the networks' own estimate: unwrapped place-bump position and HD heading |
 | `ground_truth.{kitti,tum}.txt` | the dataset's ground truth for the frames used, rebased to the first of them |
+| `trajectory_sessions.tum.txt` | a session inside a loaded map: every frame of every session the memory holds, earlier sessions first, re-placed on this run's corrected map (planar, height 0; `pipeline.sessions`) |
 | `frames.csv` | per frame: odometry status, motion given to the engine, view cell, injection, vertex, closures |
 | `bump_table.csv` | the paper's bump table (μ, σ of every bump of every module, fused and place) at chosen frames |
 | `map.bin`, `map.g2o` | the corrected experience map (versioned save file; g2o pose graph) |
@@ -747,6 +748,13 @@ def _write_data(
     if result.ground_truth is not None:
         write_kitti_poses(out / "ground_truth.kitti.txt", result.ground_truth)
         write_tum(out / "ground_truth.tum.txt", times, result.ground_truth)
+    if result.sessions is not None:
+        placed = np.isfinite(result.sessions.planar).all(axis=1)
+        write_tum(
+            out / "trajectory_sessions.tum.txt",
+            result.sessions.timestamp_s[placed],
+            result.sessions.world_from_camera()[placed],
+        )
     _write_frames_csv(out / "frames.csv", result.record)
     _write_bump_table(out / "bump_table.csv", bump_rows(result.record))
     result.out_dir = out

@@ -30,7 +30,7 @@ from hippo_nav.closure import ClosureChain
 from hippo_nav.datasets.base import DatasetExtras, StereoDataset
 from hippo_nav.io import DatasetError
 from hippo_nav.memory import SavedMemory, read_memory
-from hippo_nav.pipeline.assemble import assemble_result
+from hippo_nav.pipeline.assemble import assemble_result, corrected_track
 from hippo_nav.pipeline.frontend import (
     FrontEnd,
     FrontResult,
@@ -42,7 +42,8 @@ from hippo_nav.pipeline.frontend import (
 from hippo_nav.pipeline.observers import FrameEvent, Observer, RunInfo
 from hippo_nav.pipeline.records import RunRecord, RunRecorder, RunResult
 from hippo_nav.pipeline.results import RunFacts
-from hippo_nav.pipeline.truth import loaded_truth, truth_to_save
+from hippo_nav.pipeline.sessions import path_to_save, sessions_metrics, sessions_track
+from hippo_nav.pipeline.truth import LoadedTruth, loaded_truth, truth_to_save
 from hippo_nav.system import parts
 from hippo_nav.system.config import PipelineConfig
 from hippo_nav.system.records import StageTimer
@@ -313,7 +314,9 @@ class Pipeline:
                 self.dataset.ground_truth(),
                 interrupted,
             )
-            result.metrics = evaluate(result, self._facts(), correction, stopped_by)
+            facts = self._facts()
+            result.metrics = evaluate(result, facts, correction, stopped_by)
+            self._place_sessions(result, export, facts.loaded_truth, facts.loaded_truth_note)
             result.metrics["timing"]["correction_s"] = correction_s
             if self.system.loaded is not None:
                 result.metrics["loaded_map"] = {
@@ -348,6 +351,21 @@ class Pipeline:
             result.metrics["interrupted_by"] = signals.caught
         return result
 
+    def _place_sessions(
+        self,
+        result: RunResult,
+        export: dict[str, np.ndarray],
+        truth: LoadedTruth | None,
+        truth_note: str | None,
+    ) -> None:
+        """Every session's frames on the corrected map, and their errors (`pipeline.sessions`)."""
+        corrected = corrected_track(self.record, export["poses"]) if len(self.record) else np.zeros((0, 3))
+        result.sessions = sessions_track(self.memory, self.record, export["poses"], corrected)
+        if result.sessions is not None:
+            result.metrics["sessions"] = sessions_metrics(
+                result.sessions, truth, result.ground_truth, truth_note
+            )
+
     def _memory_to_save(self, result: RunResult) -> SavedMemory | None:
         """What `memory/` will hold, or None (said in `metrics.json`) when a part cannot be saved."""
         try:
@@ -366,6 +384,8 @@ class Pipeline:
         )
         if truth is not None:
             memory.truth, memory.info["truth"] = truth
+        resumed = bool((self.system.loaded or {}).get("resumed"))
+        memory.path = path_to_save(self.memory, self.record, resumed)
         return memory
 
     def _ground_truth(self) -> np.ndarray | None:

@@ -50,6 +50,7 @@ import numpy as np
 
 from hippo_nav._core import HippoNavError
 from hippo_nav.closure import NO_ATTEMPT, ClosureAttempt, ClosureChain
+from hippo_nav.closure.relocalisation import RelocalisationProposer
 from hippo_nav.datasets.base import StereoCalibration, StereoFrame
 from hippo_nav.engine import SpatialMemory, SpatialReadout
 from hippo_nav.geometry import planar_from_pose, se2_between, se2_compose
@@ -459,8 +460,15 @@ class SlamSystem:
             "vertex": None if outcome.loop_closure is None else int(outcome.loop_closure[1]),
             "view_cell": int(cell),
             "networks_set": placed is not None,
+            "retrace": self._retraced(),
         }
         log.info("frame %s: relocalised in the loaded map (%s)", frame.index, self.relocalisation)
+
+    def _retraced(self) -> dict[str, object] | None:
+        """What the retrace of the lost stretch did at the join (`closure.retrace`), or None (no retrace)."""
+        proposer = None if self.closure is None else self.closure.proposer("relocalisation")
+        report = proposer.retraced if isinstance(proposer, RelocalisationProposer) else None
+        return None if report is None else report.as_dict()
 
     def _data_flags(self, frame: StereoFrame, dt_s: float) -> str:
         """What is odd about this frame's place in the data: sequence frames skipped before it (holes in
