@@ -132,3 +132,28 @@ def test_the_lost_stretch_is_tied_to_the_loaded_map_where_it_passed_known_ground
     with_retrace, without = (_lost_stretch_error_m(demo, runs[k]) for k in ("retrace", "none"))
     print(json.dumps(report), with_retrace, without)
     assert with_retrace.max() < 0.5 * without.max(), (with_retrace, without)
+
+
+@pytest.mark.parametrize(
+    "damage",
+    [
+        lambda path: path.pop("vertex"),
+        lambda path: path.update(vertex=path["vertex"][:-3]),
+        lambda path: path.update(vertex_from_agent=path["vertex_from_agent"][:, :2]),
+        lambda path: path.update(session=np.array(["a"] * len(path["session"]))),
+        lambda path: path.update(vertex=path["vertex"] + 10**6),  # vertices the map does not have
+    ],
+    ids=["missing", "short", "columns", "text", "unknown_vertices"],
+)
+def test_a_damaged_path_costs_the_earlier_frames_never_the_run(day_one, demo, tmp_path, damage):
+    """`path.npz` that passed its checksum but holds the wrong arrays (a foreign or hand-edited memory): the
+    session runs and writes its results; the earlier sessions' frames are left out or unplaced, and said."""
+    memory = read_memory(day_one)
+    damage(memory.path)
+    short = Slice(demo, SECOND[0], SECOND[0] + 25)
+    result = Pipeline(short, config_from_dict(QUIET), memory=memory).run(tmp_path / "day_two")
+    assert result.metrics["loaded_map"]["relocalised"]
+    sessions = result.metrics.get("sessions")
+    if sessions is not None:  # arrays of the right form pointing at vertices the map lacks
+        assert sessions["unplaced_frames"] == LAP, sessions
+    assert (tmp_path / "day_two" / "memory" / "memory.json").is_file()

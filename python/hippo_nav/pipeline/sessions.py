@@ -55,9 +55,10 @@ def _loaded_path(memory: SavedMemory | None) -> dict[str, np.ndarray] | None:
         n = len(path["session"])
         for name, columns in _COLUMNS.items():
             array = np.asarray(path[name])
-            if len(array) != n or (columns > 1 and array.shape[1:] != (columns,)):
-                raise ValueError(name)
-    except (KeyError, ValueError, IndexError) as err:
+            shape_ok = array.shape == ((n,) if columns == 1 else (n, columns))
+            if not shape_ok or not (np.issubdtype(array.dtype, np.number) and array.dtype != np.complex128):
+                raise ValueError(f"{name}: {array.dtype} {array.shape}")
+    except (KeyError, ValueError, IndexError, TypeError) as err:
         log.warning(
             "the loaded memory's path.npz is not usable (%s); earlier sessions are not re-placed", err
         )
