@@ -517,7 +517,9 @@ struct VelocityMix<T> {
 impl<T: Real> VelocityMix<T> {
     fn new(dense: &[f64], n: usize) -> Self {
         let c = faer::Mat::<f64>::from_fn(n, n, |i, j| dense[i * n + j]);
-        let Ok(eigen) = c.self_adjoint_eigen(faer::Side::Lower) else {
+        let eigen = c.self_adjoint_eigen(faer::Side::Lower);
+        hippo_simd::clear_upper_halves(); // faer's kernels ran on this thread (`Real::gemm`)
+        let Ok(eigen) = eigen else {
             // The symmetric eigensolver does not fail on a small finite matrix; if it ever did, the
             // identity factorisation is the dense product itself (exact, just slower).
             return Self {

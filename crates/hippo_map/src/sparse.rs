@@ -522,6 +522,9 @@ impl<const B: usize> BlockSystem<B> {
             Par::Seq,
             MemStack::new(&mut self.workspace),
         );
+        // A supernodal factor's dense blocks ran faer's GEMM assembly on this thread, which returns with
+        // the vector registers dirty: the caller's SSE code would pay for it (`hippo_simd`).
+        hippo_simd::clear_upper_halves();
         for (b, &p) in self.position.iter().enumerate() {
             rhs[b * B..(b + 1) * B].copy_from_slice(&self.permuted_rhs[p * B..(p + 1) * B]);
         }

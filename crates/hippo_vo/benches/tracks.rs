@@ -3,7 +3,8 @@
 //! and the row shear (stereo) are timed in the same run; compare them as ratios (absolute times on a
 //! shared machine are noise). Benches may unwrap.
 #![allow(clippy::unwrap_used)]
-use criterion::{criterion_group, criterion_main, Criterion};
+use criterion::{criterion_group, criterion_main, BatchSize, Criterion};
+use hippo_attractor::{SpatialMemory, SpatialMemoryParams};
 use hippo_vo::{refine_matches, GrayImage, RefineParams, WarpModel};
 
 const WIDTH: usize = 1241;
@@ -62,6 +63,14 @@ fn refine(c: &mut Criterion) {
     group.bench_function("affine", |bench| {
         bench
             .iter(|| refine_matches(&a, &b, &points, &tracked, WarpModel::Affine, &params).unwrap())
+    });
+    let mut engine = SpatialMemory::<f32>::new(SpatialMemoryParams::default()).unwrap();
+    group.bench_function("affine_after_engine_step", |bench| {
+        bench.iter_batched(
+            || engine.step(0.2, 12.0, 0.1, None).unwrap(),
+            |_| refine_matches(&a, &b, &points, &tracked, WarpModel::Affine, &params).unwrap(),
+            BatchSize::PerIteration,
+        )
     });
     group.bench_function("row_shear", |bench| {
         bench.iter(|| {

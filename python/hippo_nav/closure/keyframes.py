@@ -47,6 +47,7 @@ class Keyframe:
 
 DESCRIPTOR_BYTES = {"orb": 32, "sift": 128}
 _SIFT_MAX_WIDTH_PX = 640.0  # SIFT runs on the left image shrunk to at most this width
+_MIN_BATCH = 32  # features matched into the right image at least per KLT call (each call builds pyramids)
 
 
 def _empty_keyframe(descriptor_bytes: int) -> Keyframe:
@@ -129,23 +130,25 @@ class KeyframeExtractor:
         if scale < 1.0:  # back to full-size pixels (pixel centres at integers in both images)
             pixels = ((pixels + 0.5) / scale - 0.5).astype(np.float32)
         response = np.array([k.response for k in keypoints], dtype=np.float32)
-        guess = pixels.copy()
-        guess[:, 0] -= self.fx * self.baseline_m / cfg.stereo_guess_depth_m - offset_px
-        flags = cv2.OPTFLOW_USE_INITIAL_FLOW
-        in_right, ok, _ = cv2.calcOpticalFlowPyrLK(left, right, pixels, guess, flags=flags, **self._klt)
-        back, ok_back, _ = cv2.calcOpticalFlowPyrLK(
-            right, left, in_right, pixels.copy(), flags=flags, **self._klt
-        )
-        disparity = pixels[:, 0] - in_right[:, 0] + offset_px
-        keep = (
-            (ok.ravel() == 1)
-            & (ok_back.ravel() == 1)
-            & (np.linalg.norm(back - pixels, axis=1) < cfg.forward_backward_px)
-            & (np.abs(in_right[:, 1] - pixels[:, 1]) < cfg.stereo_row_tolerance_px)
-            & (disparity > 0.5)
-        )
-        index = np.flatnonzero(keep)
-        index = index[np.argsort(-response[index], kind="stable")[: cfg.keyframe_features]]
+        in_right = np.zeros_like(pixels)
+        disparity = np.zeros(len(pixels), np.float32)
+        # The strongest features with a stereo match, strongest first (ties in detection order). KLT tracks
+        # every point on its own, so matching the strongest first, and the next ones only while fewer than
+        # `keyframe_features` have matched, keeps exactly the features that matching all of them would
+        # (on real KITTI 06 about 410 of the 500 are tracked and 340 tracked back: 0.9x the single-thread
+        # CPU of a keyframe).
+        order = np.argsort(-response, kind="stable")
+        chosen: list[np.ndarray] = []
+        wanted, start = cfg.keyframe_features, 0
+        while wanted > 0 and start < len(order):
+            batch = order[start : start + max(wanted + wanted // 4, _MIN_BATCH)]
+            start += len(batch)
+            matched, in_right[batch], disparity[batch] = self._stereo_matches(
+                left, right, pixels[batch], offset_px
+            )
+            chosen.append(batch[matched][:wanted])
+            wanted -= len(chosen[-1])
+        index = np.concatenate(chosen) if chosen else np.zeros(0, np.int64)
         if index.size == 0:
             return _empty_keyframe(self.descriptor_bytes)
         if cfg.refine_stereo:
@@ -169,3 +172,30 @@ class KeyframeExtractor:
             np.ascontiguousarray(descriptors[index]),
             points.astype(np.float32),
         )
+
+    def _stereo_matches(
+        self, left: np.ndarray, right: np.ndarray, pixels: np.ndarray, offset_px: float
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(matched, right-image positions, disparities px) of left `pixels`: KLT into the right image from
+        the disparity of `stereo_guess_depth_m`, kept within `stereo_row_tolerance_px` of the row, with a
+        positive disparity, and back into the left image within `forward_backward_px` (tracked back only
+        where the rest holds)."""
+        cfg = self.config
+        guess = pixels.copy()
+        guess[:, 0] -= self.fx * self.baseline_m / cfg.stereo_guess_depth_m - offset_px
+        flags = cv2.OPTFLOW_USE_INITIAL_FLOW
+        in_right, ok, _ = cv2.calcOpticalFlowPyrLK(left, right, pixels, guess, flags=flags, **self._klt)
+        disparity = pixels[:, 0] - in_right[:, 0] + offset_px
+        matched = (
+            (ok.ravel() == 1)
+            & (np.abs(in_right[:, 1] - pixels[:, 1]) < cfg.stereo_row_tolerance_px)
+            & (disparity > 0.5)
+        )
+        if matched.any():
+            back, ok_back, _ = cv2.calcOpticalFlowPyrLK(
+                right, left, in_right[matched], pixels[matched].copy(), flags=flags, **self._klt
+            )
+            matched[matched] = (ok_back.ravel() == 1) & (
+                np.linalg.norm(back - pixels[matched], axis=1) < cfg.forward_backward_px
+            )
+        return matched, in_right, disparity

@@ -1,0 +1,61 @@
+//! The vector registers' state between libraries.
+//!
+//! Compilers end every function that used the 256- or 512-bit registers with `vzeroupper`, so that plain SSE
+//! code after it runs at full speed. faer's dense products (the `gemm` crates' kernels, AVX-512 where the CPU
+//! has it) return without it. Plain SSE code that runs on that thread next (most of this workspace: it is
+//! built for baseline x86-64 so that one wheel runs everywhere) then runs slowly until some compiled AVX
+//! function clears them: the odometry's warped-window refinement ran 2.7× slower on rayon's threads after an
+//! engine step than before one, on real KITTI 06 (docs/results.md, "Cost"; `cargo bench -p hippo_vo --bench
+//! tracks`, `affine_after_engine_step`). Clearing them changes no number: the instruction touches no value a
+//! program can see.
+#![warn(missing_docs)]
+
+/// `vzeroupper` on the calling thread (nothing on a CPU without AVX or off x86-64): after a dense faer
+/// product or factorisation that ran here.
+pub fn clear_upper_halves() {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx") {
+        zero_upper();
+    }
+}
+
+/// [`clear_upper_halves`] on every thread of the current rayon pool and on the calling thread: after a
+/// product that faer spread over the pool.
+pub fn clear_upper_halves_everywhere() {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx") {
+        rayon::broadcast(|_| zero_upper());
+        zero_upper();
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[allow(unsafe_code)] // the one instruction, on a CPU that the callers checked has AVX
+fn zero_upper() {
+    #[target_feature(enable = "avx")]
+    unsafe fn zero_upper_avx() {
+        std::arch::x86_64::_mm256_zeroupper();
+    }
+    // SAFETY: called only after `is_x86_feature_detected!("avx")` said the CPU has AVX.
+    unsafe { zero_upper_avx() }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn clearing_runs_on_any_thread_and_inside_the_pool() {
+        // No value can show whether the registers were cleared; what must hold is that the calls work
+        // from outside the pool, from inside one of its tasks (a broadcast from a worker waits for every
+        // worker, including itself) and from a pool of one thread.
+        clear_upper_halves();
+        clear_upper_halves_everywhere();
+        rayon::scope(|s| s.spawn(|_| clear_upper_halves_everywhere()));
+        let single = rayon::ThreadPoolBuilder::new().num_threads(1).build();
+        assert!(single.is_ok());
+        if let Ok(pool) = single {
+            pool.install(clear_upper_halves_everywhere);
+        }
+    }
+}
