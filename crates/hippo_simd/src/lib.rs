@@ -7,24 +7,15 @@
 //! function clears them: the odometry's warped-window refinement ran 2.7× slower on rayon's threads after an
 //! engine step than before one, on real KITTI 06 (docs/results.md, "Cost"; `cargo bench -p hippo_vo --bench
 //! tracks`, `affine_after_engine_step`). Clearing them changes no number: the instruction touches no value a
-//! program can see.
+//! program can see, so no test can tell; the benchmark above measures what it is for.
 #![warn(missing_docs)]
 
 /// `vzeroupper` on the calling thread (nothing on a CPU without AVX or off x86-64): after a dense faer
-/// product or factorisation that ran here.
+/// product or factorisation that ran on it. A product spread over rayon's threads must be split so that each
+/// thread clears its own (`hippo_attractor`'s `Real::gemm`).
 pub fn clear_upper_halves() {
     #[cfg(target_arch = "x86_64")]
     if std::arch::is_x86_feature_detected!("avx") {
-        zero_upper();
-    }
-}
-
-/// [`clear_upper_halves`] on every thread of the current rayon pool and on the calling thread: after a
-/// product that faer spread over the pool.
-pub fn clear_upper_halves_everywhere() {
-    #[cfg(target_arch = "x86_64")]
-    if std::arch::is_x86_feature_detected!("avx") {
-        rayon::broadcast(|_| zero_upper());
         zero_upper();
     }
 }
@@ -38,24 +29,4 @@ fn zero_upper() {
     }
     // SAFETY: called only after `is_x86_feature_detected!("avx")` said the CPU has AVX.
     unsafe { zero_upper_avx() }
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn clearing_runs_on_any_thread_and_inside_the_pool() {
-        // No value can show whether the registers were cleared; what must hold is that the calls work
-        // from outside the pool, from inside one of its tasks (a broadcast from a worker waits for every
-        // worker, including itself) and from a pool of one thread.
-        clear_upper_halves();
-        clear_upper_halves_everywhere();
-        rayon::scope(|s| s.spawn(|_| clear_upper_halves_everywhere()));
-        let single = rayon::ThreadPoolBuilder::new().num_threads(1).build();
-        assert!(single.is_ok());
-        if let Ok(pool) = single {
-            pool.install(clear_upper_halves_everywhere);
-        }
-    }
 }
