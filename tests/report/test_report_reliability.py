@@ -312,3 +312,28 @@ def test_the_command_on_a_malformed_metrics_file_is_one_line_never_a_traceback(f
             assert "metrics.json" in line or "no run has it" in line, line
         else:
             assert code == 0
+
+
+def test_an_axis_whose_values_are_lists_is_plotted_not_a_type_error(tmp_path):
+    """A sweep over `parts.closure` gives list-valued axes (unhashable): the report's figures take them."""
+    from hippo_nav.report import figures
+    from hippo_nav.report.collect import RunRow
+
+    chains = [["view_cell", "proximity"], ["view_cell", "proximity", "sequence"]]
+    rows = [
+        RunRow(
+            tmp_path / f"r{i}",
+            f"r{i}",
+            "s",
+            "done",
+            None,
+            {"parts.closure": chains[i % 2], "seed": i // 2},
+            {"ate_2d_corrected_m": 1.0 + i},
+        )
+        for i in range(4)
+    ]
+    keys = ["parts.closure", "seed"]
+    assert figures.swept_key(rows, keys) == "parts.closure"
+    made = figures.response(rows, keys, "ate_2d_corrected_m", "parts.closure", tmp_path)
+    assert made is not None and made.stat().st_size > 0
+    assert figures.metric_by_configuration(rows, keys, "ate_2d_corrected_m", tmp_path) is not None

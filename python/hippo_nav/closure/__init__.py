@@ -10,7 +10,8 @@ enough inliers, its planar part and covariance (from the reprojection Jacobian) 
 
 The proposers (`PROPOSERS`, one module each, each with its config section `closure.<name>`): `view_cell`
 (familiar views), `proximity` (the vertex where the odometry puts the agent), `relocalisation` (a session
-inside a loaded map), `birdseye` (stereo structure from above, for streets driven the other way).
+inside a loaded map), `birdseye` (stereo structure from above, for streets driven the other way), `sequence` (the last views along
+the path matched in order, for revisits under other light that a drifting odometry misplaces).
 
 ```python
 from hippo_nav.closure import ClosureConfig, KeyframeExtractor, LoopMeasurer

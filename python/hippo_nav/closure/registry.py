@@ -10,6 +10,7 @@ from hippo_nav.closure.base import ClosureProposer
 from hippo_nav.closure.birdseye import BirdsEyeConfig, BirdsEyeProposer
 from hippo_nav.closure.proximity import ProximityConfig, ProximityProposer
 from hippo_nav.closure.relocalisation import RelocalisationConfig, RelocalisationProposer
+from hippo_nav.closure.sequence import SequenceConfig, SequenceProposer
 from hippo_nav.closure.view_cell import ViewCellConfig, ViewCellProposer
 from hippo_nav.plugs import Part
 
@@ -22,7 +23,9 @@ PROPOSERS: dict[str, Part[ProposerFactory]] = {
     "view_cell": Part(ViewCellProposer, ViewCellConfig, "view_cell"),
     "proximity": Part(ProximityProposer, ProximityConfig, "proximity"),
     "birdseye": Part(BirdsEyeProposer, BirdsEyeConfig, "birdseye"),
+    "sequence": Part(SequenceProposer, SequenceConfig, "sequence"),
 }
 
-# Bird's-eye closures are off by default for their cost where the map has old places around (docs/results.md).
+# Bird's-eye and sequence closures are off by default for their cost where the map has old places around
+# (docs/results.md, "Cost").
 DEFAULT_PROPOSERS = ("relocalisation", "view_cell", "proximity")

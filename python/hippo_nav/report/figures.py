@@ -131,7 +131,8 @@ def response(rows: Sequence[RunRow], keys: Sequence[str], metric: str, key: str,
             lines.setdefault(label, []).append(row)
     if not lines:
         return None
-    values = list(dict.fromkeys(r.axes.get(key) for rs in lines.values() for r in rs))
+    # By repr: an axis's values may be lists (`parts.closure`), which are not hashable.
+    values = list({repr(v): v for v in (r.axes.get(key) for rs in lines.values() for r in rs)}.values())
     numeric = all(_is_number(v) for v in values)
     order: list[Any] = sorted(values) if numeric else values
     position = {repr(v): (float(v) if numeric else float(i)) for i, v in enumerate(order)}
