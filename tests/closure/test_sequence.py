@@ -54,13 +54,14 @@ class _Map:
     world_from_agent: tuple[float, float, float] | None = (0.0, 0.0, 0.0)
     admitted: list[int] = field(default_factory=list)
     radii: list[float] = field(default_factory=list)  # every search radius asked for
+    metres_per_vertex: float = 0.0  # vertex v lies v times this from where the odometry puts the agent
 
     def vertices_near(self, radius_m, step):
         self.radii.append(radius_m)
         return list(self.admitted)
 
     def loop_candidates(self, vertices, step):
-        return [(v, (0.0, 0.0, 0.0), 0.0) for v in vertices]
+        return [(v, (0.0, 0.0, 0.0), v * self.metres_per_vertex) for v in vertices]
 
     def poses(self):
         k = np.arange(2 * STREET_FRAMES)
@@ -82,15 +83,19 @@ class _Store:
     def keyframe(self, vertex):
         return object()
 
-    def measure(self, vertex, current, min_inliers):
+    def measure_confirmed(self, experience_map, vertex, current, min_inliers, confirm, via):
         self.measured.add(vertex)
         return None, "too_few_inliers"
 
 
-def _drive(images, config, travel_since_closure_m=0.0, jump_m=0.0):
+def _drive(images, config, travel_since_closure_m=0.0, jump_m=0.0, metres_per_vertex=0.0):
     """Feed both passes, a frame a sample (the second `jump_m` further on the odometer); (for each
     second-pass frame the best sequence matches and the vertices measured, the map, the proposer)."""
-    proposer, experience_map, store = SequenceProposer(config), _Map(), _Store()
+    proposer, experience_map, store = (
+        SequenceProposer(config),
+        _Map(metres_per_vertex=metres_per_vertex),
+        _Store(),
+    )
     matches, measured = [], []
     poses = experience_map.poses()
     for i, image in enumerate(images):
@@ -111,7 +116,8 @@ def _drive(images, config, travel_since_closure_m=0.0, jump_m=0.0):
         )
         proposer.propose(context)
         if second:
-            matches.append(proposer._search(context))
+            vertices, distances_m, reach_m = proposer._region(context)
+            matches.append(proposer._search(vertices[distances_m <= reach_m]))
             measured.append(sorted(store.measured))
     return matches, measured, experience_map, proposer
 
@@ -177,12 +183,13 @@ def test_the_search_radius_grows_with_the_travel_since_the_last_closure_up_to_it
     images, _ = street_twice[0.0]
     config = SequenceConfig(radius_m=10.0, radius_per_m=0.04, max_radius_m=150.0)
     for travel_m, radius_m in ((0.0, 10.0), (1000.0, 50.0), (10_000.0, 150.0)):
-        _, _, experience_map, _ = _drive(images[: STREET_FRAMES + 12], config, travel_m)
-        # The views are searched within the radius; a drift's target within it plus 6 m.
-        assert pytest.approx(radius_m) in experience_map.radii
-        assert all(
-            r in (pytest.approx(radius_m), pytest.approx(radius_m + 6.0)) for r in experience_map.radii
-        )
+        # Vertex v lies v · radius / 30 from where the odometry puts the agent: only 0-30 are in the region.
+        matches, _, experience_map, _ = _drive(images, config, travel_m, metres_per_vertex=radius_m / 30)
+        # Asked of the map once a frame, 6 m beyond the radius (where a drift's target may lie); the views
+        # are searched within the radius only (the second pass revisits vertices 0-59).
+        assert experience_map.radii and all(r == pytest.approx(radius_m + 6.0) for r in experience_map.radii)
+        matched = {v for m in matches for v in m}
+        assert matched and max(matched) <= 30
 
 
 def test_the_descriptor_keeps_a_place_through_light_and_resolution_not_another_place(street_twice):

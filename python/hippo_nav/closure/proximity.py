@@ -88,15 +88,16 @@ class ProximityProposer:
         for vertex in candidates:
             if store.keyframe(vertex) is None:
                 continue
-            measurement, why = store.measure(vertex, current, self.config.min_inliers)
+            measurement, why = store.measure_confirmed(
+                context.experience_map,
+                vertex,
+                current,
+                self.config.min_inliers,
+                self.config.confirm,
+                "proximity",
+            )
             if measurement is None:
                 continue
-            if self.config.confirm:
-                confirmed, why = store.confirmed(
-                    context.experience_map, vertex, measurement, current, "proximity"
-                )
-                if not confirmed:
-                    continue
             closure = ProposedClosure(
                 vertex, measurement.agent_from_target, measurement.information, "proximity"
             )

@@ -148,11 +148,17 @@ class SequenceProposer:
         if vertex is None or agent is None:
             return NO_ATTEMPT
         predicted = se2_compose(np.asarray(agent), np.asarray(context.planar_step))
-        if experience_map.odometer_m >= self._next_sample_m:
-            self._sample(context, vertex, predicted[:2])
-        if context.lost or not context.spaced:
+        sampling = experience_map.odometer_m >= self._next_sample_m
+        if context.lost or not (sampling or context.spaced):
+            if sampling:
+                self._sample(context, vertex, predicted[:2], None)
             return NO_ATTEMPT
-        targets = self._targets(context, predicted[:2])
+        region = self._region(context)
+        if sampling:
+            self._sample(context, vertex, predicted[:2], region)
+        if not context.spaced:
+            return NO_ATTEMPT
+        targets = self._targets(context, predicted[:2], region)
         if not targets:
             return NO_ATTEMPT
         store = context.keyframes
@@ -161,28 +167,34 @@ class SequenceProposer:
             return ClosureAttempt(None, why)
         why = "no_keyframe"
         for target in targets:
-            measurement, why = store.measure(target, current, self.config.min_inliers)
+            measurement, why = store.measure_confirmed(
+                experience_map, target, current, self.config.min_inliers, self.config.confirm, "sequence"
+            )
             if measurement is None:
                 continue
-            if self.config.confirm:
-                confirmed, why = store.confirmed(experience_map, target, measurement, current, "sequence")
-                if not confirmed:
-                    continue
             closure = ProposedClosure(
                 target, measurement.agent_from_target, measurement.information, "sequence"
             )
             return ClosureAttempt(closure, "measured")
         return ClosureAttempt(None, why)
 
-    def _targets(self, context: ClosureContext, predicted_xy: np.ndarray) -> list[int]:
-        """For the best-supported drift hypotheses, the gated vertex nearest to where each puts the agent now
-        (within `closure.max_distance_m` plus a vertex spacing), not yet measured this frame."""
-        cfg, experience_map, store = self.config, context.experience_map, context.keyframes
+    def _region(self, context: ClosureContext) -> tuple[np.ndarray, np.ndarray, float]:
+        """(the vertices the loop gate admits within the search radius plus `_TARGET_M`, their distances
+        from where the odometry puts the agent, the search radius): asked of the map once a frame."""
+        cfg, experience_map = self.config, context.experience_map
         reach_m = min(cfg.radius_m + cfg.radius_per_m * context.travel_since_closure_m, cfg.max_radius_m)
         near = experience_map.vertices_near(reach_m + _TARGET_M, context.planar_step)
-        gated = np.array(
-            [int(c[0]) for c in experience_map.loop_candidates(near, context.planar_step)] if near else []
-        )
+        gated = experience_map.loop_candidates(near, context.planar_step) if near else []
+        vertices = np.array([int(c[0]) for c in gated], np.int64)
+        return vertices, np.array([float(c[2]) for c in gated]), reach_m
+
+    def _targets(
+        self, context: ClosureContext, predicted_xy: np.ndarray, region: tuple[np.ndarray, np.ndarray, float]
+    ) -> list[int]:
+        """The gated vertex nearest to where the best-supported drift puts the agent now (within `_TARGET_M`),
+        then the last sample's best matches, `candidates_per_frame` in all, none measured yet this frame."""
+        cfg, experience_map, store = self.config, context.experience_map, context.keyframes
+        gated = region[0]
         if len(gated) == 0:
             return []
         xy = experience_map.poses()[gated, :2]
@@ -209,8 +221,15 @@ class SequenceProposer:
                 targets.append(vertex)
         return targets
 
-    def _sample(self, context: ClosureContext, vertex: int, predicted_xy: np.ndarray) -> None:
-        """Keep this frame's view and, with `length` views behind it, shortlist the places it matches."""
+    def _sample(
+        self,
+        context: ClosureContext,
+        vertex: int,
+        predicted_xy: np.ndarray,
+        region: tuple[np.ndarray, np.ndarray, float] | None,
+    ) -> None:
+        """Keep this frame's view and, with `length` views behind it and a `region` to search (None: lost),
+        shortlist the places it matches and let them vote."""
         cfg = self.config
         odometer = context.experience_map.odometer_m
         view = edge_layout(np.asarray(context.frame.left), cfg.rows_frac)
@@ -222,11 +241,12 @@ class SequenceProposer:
         self._count += 1
         self._sum += view
         self._next_sample_m = odometer + cfg.sample_spacing_m
-        if context.lost:
+        if region is None:
             return
         # Each sample votes for where its best matches say the odometry has drifted; older votes fade.
         self._support *= _VOTE_DECAY
-        matches = self._search(context)
+        vertices, distances_m, reach_m = region
+        matches = self._search(vertices[distances_m <= reach_m])
         self._shortlist = list(matches)
         if matches:
             vertex_xy = context.experience_map.poses()[matches, :2]
@@ -251,20 +271,14 @@ class SequenceProposer:
         self._drift_xy = np.vstack([self._drift_xy, drift_xy[None]])
         self._support = np.append(self._support, weight)
 
-    def _search(self, context: ClosureContext) -> list[int]:
-        """The gated vertices in the search region, best sequence match first, `shortlist` of them."""
-        cfg, experience_map = self.config, context.experience_map
+    def _search(self, gated: np.ndarray) -> list[int]:
+        """Among the `gated` vertices (the search region), the best sequence matches of the newest view, best
+        first, `shortlist` of them."""
+        cfg = self.config
         now = len(self._views) - 1
-        if now + 1 < cfg.length or not self._contiguous(now):
+        if now + 1 < cfg.length or not self._contiguous(now) or len(gated) == 0:
             return []
-        reach_m = min(cfg.radius_m + cfg.radius_per_m * context.travel_since_closure_m, cfg.max_radius_m)
-        near = experience_map.vertices_near(reach_m, context.planar_step)
-        gated = (
-            {int(c[0]) for c in experience_map.loop_candidates(near, context.planar_step)} if near else set()
-        )
-        if not gated:
-            return []
-        ends = np.flatnonzero(np.isin(self._view_vertex, list(gated)))
+        ends = np.flatnonzero(np.isin(self._view_vertex, gated))
         ends = ends[(ends >= cfg.length - 1) & (ends < now)]
         ends = np.array([j for j in ends if self._contiguous(int(j))], np.int64)
         if len(ends) == 0:
@@ -320,6 +334,8 @@ class SequenceProposer:
         }
 
     def restore_state(self, saved: dict[str, np.ndarray]) -> None:
+        if not {"views", "view_vertex", "view_odometer_m", "next_sample_m"} <= saved.keys():
+            return  # a damaged state: start fresh
         views = np.asarray(saved["views"], np.float32)
         if views.ndim != 2 or views.shape[1] != self._views.shape[1]:
             return  # another descriptor: start fresh

@@ -99,6 +99,23 @@ class KeyframeStore:
         self.measured.add(vertex)
         return self.measurer.measure(keyframe, current, min_inliers)
 
+    def measure_confirmed(
+        self,
+        experience_map: ExperienceMap,
+        vertex: int,
+        current: Keyframe,
+        min_inliers: int,
+        confirm: bool,
+        via: str,
+    ) -> tuple[LoopMeasurement | None, str]:
+        """`measure` at `min_inliers`, then, when `confirm`, `confirmed` by a path neighbour: the measurement
+        a proposer may propose, or (None, why not)."""
+        measurement, why = self.measure(vertex, current, min_inliers)
+        if measurement is None or not confirm:
+            return measurement, why
+        confirmed, why = self.confirmed(experience_map, vertex, measurement, current, via)
+        return (measurement, why) if confirmed else (None, why)
+
     def confirmed(
         self,
         experience_map: ExperienceMap,
