@@ -146,8 +146,8 @@ def test_a_wrong_proximity_measurement_is_refused_when_its_neighbour_disagrees(d
 @pytest.mark.slow
 def test_proximity_reaches_a_revisit_the_odometry_put_far_off(demo, tmp_path):
     # An odometry 2 % long that turns 0.1° a frame puts the demo's second lap 2-9 m from the first, beyond
-    # the proximity radius (1 m here), so only the ring that grows with the travel since the last closure
-    # (`closure.proximity.radius_per_m`: 20 m after the first lap) can reach the revisit.
+    # the proximity radius (1 m here), so only the ring that grows with the path through the map between the
+    # agent and a vertex (`closure.proximity.radius_per_m`: 20 m a lap back) can reach the revisit.
     truth = demo.ground_truth()
     drifted = drifting_odometry(truth, scale_error=0.02, yaw_bias_deg_per_frame=0.1)
     metrics = {}

@@ -4,6 +4,7 @@ resolution; its search stays inside the region it is given; its views outlive a 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from types import SimpleNamespace
 
@@ -54,14 +55,16 @@ class _Map:
     world_from_agent: tuple[float, float, float] | None = (0.0, 0.0, 0.0)
     admitted: list[int] = field(default_factory=list)
     radii: list[float] = field(default_factory=list)  # every search radius asked for
-    metres_per_vertex: float = 0.0  # vertex v lies v times this from where the odometry puts the agent
+    # How far from where the odometry puts the agent vertex v lies, and the path through the map to it.
+    distance_m: Callable[[int], float] = lambda v: 0.0
+    path_m: Callable[[int], float] = lambda v: 0.0
 
     def vertices_near(self, radius_m, step):
         self.radii.append(radius_m)
         return list(self.admitted)
 
     def loop_candidates(self, vertices, step):
-        return [(v, (0.0, 0.0, 0.0), v * self.metres_per_vertex) for v in vertices]
+        return [(v, (0.0, 0.0, 0.0), self.distance_m(v), self.path_m(v)) for v in vertices]
 
     def poses(self):
         k = np.arange(2 * STREET_FRAMES)
@@ -88,12 +91,13 @@ class _Store:
         return None, "too_few_inliers"
 
 
-def _drive(images, config, travel_since_closure_m=0.0, jump_m=0.0, metres_per_vertex=0.0):
-    """Feed both passes, a frame a sample (the second `jump_m` further on the odometer); (for each
-    second-pass frame the best sequence matches and the vertices measured, the map, the proposer)."""
+def _drive(images, config, path_m=lambda v: 0.0, jump_m=0.0, distance_m=lambda v: 0.0):
+    """Feed both passes, a frame a sample (the second `jump_m` further on the odometer; `path_m(v)`: the
+    path through the map from the agent to vertex v, `distance_m(v)` its distance); (for each second-pass frame the best sequence matches
+    and the vertices measured, the map, the proposer)."""
     proposer, experience_map, store = (
         SequenceProposer(config),
-        _Map(metres_per_vertex=metres_per_vertex),
+        _Map(distance_m=distance_m, path_m=path_m),
         _Store(),
     )
     matches, measured = [], []
@@ -112,7 +116,6 @@ def _drive(images, config, travel_since_closure_m=0.0, jump_m=0.0, metres_per_ve
             keyframes=store,
             lost=False,
             spaced=True,
-            travel_since_closure_m=travel_since_closure_m,
         )
         proposer.propose(context)
         if second:
@@ -179,17 +182,27 @@ def test_a_gap_in_the_odometry_breaks_the_sequence_until_length_views_follow_it(
     assert _first_choice_hits(matches, revisit_of, config.length)[0] >= 0.9
 
 
-def test_the_search_radius_grows_with_the_travel_since_the_last_closure_up_to_its_cap(street_twice):
+def test_a_vertex_is_searched_within_a_radius_grown_with_the_path_to_it_up_to_its_cap(street_twice):
     images, _ = street_twice[0.0]
     config = SequenceConfig(radius_m=10.0, radius_per_m=0.04, max_radius_m=150.0)
-    for travel_m, radius_m in ((0.0, 10.0), (1000.0, 50.0), (10_000.0, 150.0)):
+    for path_m, radius_m in ((0.0, 10.0), (1000.0, 50.0), (10_000.0, 150.0)):
         # Vertex v lies v · radius / 30 from where the odometry puts the agent: only 0-30 are in the region.
-        matches, _, experience_map, _ = _drive(images, config, travel_m, metres_per_vertex=radius_m / 30)
-        # Asked of the map once a frame, 6 m beyond the radius (where a drift's target may lie); the views
-        # are searched within the radius only (the second pass revisits vertices 0-59).
-        assert experience_map.radii and all(r == pytest.approx(radius_m + 6.0) for r in experience_map.radii)
+        matches, _, experience_map, _ = _drive(
+            images, config, lambda v, p=path_m: p, distance_m=lambda v, r=radius_m: v * r / 30
+        )
+        # Asked of the map once a frame out to the widest radius and 6 m beyond (where a drift's target may
+        # lie); the views are searched within each vertex's radius only (the second pass revisits 0-59).
+        assert experience_map.radii and all(r == pytest.approx(156.0) for r in experience_map.radii)
         matched = {v for m in matches for v in m}
         assert matched and max(matched) <= 30
+    # Each vertex has its own radius (after a closure, the places near it are pinned, the ones far along the
+    # map are not): every vertex lies 20 m from where the odometry puts the agent; 30-59 are 1 000 m along
+    # the map from it (a 50 m radius) and searched, 0-29 only 100 m (14 m) and not.
+    matches, _, _, _ = _drive(
+        images, config, lambda v: 1000.0 if v >= 30 else 100.0, distance_m=lambda v: 20.0
+    )
+    matched = {v for m in matches for v in m}
+    assert matched and min(matched) >= 30
 
 
 def test_the_descriptor_keeps_a_place_through_light_and_resolution_not_another_place(street_twice):

@@ -18,7 +18,7 @@ from hippo_nav.datasets.euroc import CameraFiles
 from hippo_nav.datasets.folder import read_times_file
 from hippo_nav.datasets.kitti import read_calibration, read_times
 from hippo_nav.io import DatasetError
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 SETTINGS = settings(max_examples=60, deadline=None)
@@ -126,6 +126,7 @@ def test_timestamps_files_are_read_or_one_line(folder, lines):
 
 
 @given(data=STRUCTURES)
+@example(data="\n")  # a value that is a line break: quoted escaped, the message stays one line
 @SETTINGS
 def test_any_yaml_structure_is_read_or_one_line(folder, data):
     path = _write(folder / "calibration.yaml", yaml.safe_dump({"fx": data, "K": data}))

@@ -194,7 +194,7 @@ def drive_with_measured_closures() -> tuple[ExperienceMap, list, list, list]:
         closure = None
         if k >= 82 and k % 4 == 0:
             candidates = m.loop_candidates(list(range(len(m))), step)
-            assert all(vertex_frame[v] < k - 40 for v, _, _ in candidates)
+            assert all(vertex_frame[v] < k - 40 for v, _, _, _ in candidates)
             if candidates:
                 target = candidates[0][0]
                 tx, ty, tyaw = truth[vertex_frame[target]]

@@ -18,9 +18,11 @@
 //! - A loop closure only joins vertices that lie at least [`MapParams::min_loop_separation_m`] apart
 //!   along the travelled path (a vertex made a few frames ago is not a place seen again), and only
 //!   where the odometry, run forward in the current map, puts the agent: within
-//!   `loop_gate_m + loop_gate_per_m · d` (and the heading gate likewise), `d` being the distance
-//!   travelled since the last accepted closure, i.e. the drift the map has not yet corrected. This
-//!   evidence is independent of the view injection, which moves the neural codes onto the stored ones.
+//!   `loop_gate_m + loop_gate_per_m · d` (and the heading gate likewise), `d` being the length of the
+//!   shortest path through the map's links from the agent to the vertex, i.e. the odometry that relates
+//!   the two (`paths`). A closure shortens the paths to the places near it only: a place kilometres
+//!   along the graph from the last closure keeps its wide gate. This evidence is independent of the view
+//!   injection, which moves the neural codes onto the stored ones.
 //! - After the online correction a new loop link must agree with the rest of the map (its χ² below
 //!   [`MapParams::max_loop_chi2`]); otherwise it is taken back and the poses restored.
 //!
@@ -49,6 +51,7 @@ use crate::error::{MapError, Result};
 use crate::graph::{
     check_information, check_pose, isotropic_information, Edge, EdgeKind, PoseGraph,
 };
+use crate::paths::path_lengths_m;
 use crate::relax::{relax_with_stop, RelaxationParams};
 use crate::se2::{wrap_angle, Pose2};
 use crate::solve::{optimize_with_stop, Initialization, SolverParams, Termination};
@@ -108,9 +111,10 @@ pub struct MapParams {
     /// A loop closure joins only vertices at least this far apart along the path travelled (m).
     pub min_loop_separation_m: f64,
     /// Loop gate: the closed-onto pose must lie within `loop_gate_m + loop_gate_per_m · d` of where the
-    /// odometry puts the agent, `d` the distance (m) travelled since the last accepted closure.
+    /// odometry puts the agent, `d` the length (m) of the shortest path through the map's links from the
+    /// agent to the closed-onto vertex.
     pub loop_gate_m: f64,
-    /// Growth of the loop gate per metre travelled since the last closure.
+    /// Growth of the loop gate per metre of that path.
     pub loop_gate_per_m: f64,
     /// Heading gate, likewise: `loop_gate_yaw_rad + loop_gate_yaw_rad_per_m · d`.
     pub loop_gate_yaw_rad: f64,
@@ -231,11 +235,11 @@ impl MapParams {
         )
     }
 
-    /// The loop gate after travelling `since_closure_m` without a closure: (radius m, yaw rad).
-    pub fn loop_gate(&self, since_closure_m: f64) -> (f64, f64) {
+    /// The loop gate for a vertex `path_m` along the map's links from the agent: (radius m, yaw rad).
+    pub fn loop_gate(&self, path_m: f64) -> (f64, f64) {
         (
-            self.loop_gate_m + self.loop_gate_per_m * since_closure_m,
-            (self.loop_gate_yaw_rad + self.loop_gate_yaw_rad_per_m * since_closure_m)
+            self.loop_gate_m + self.loop_gate_per_m * path_m,
+            (self.loop_gate_yaw_rad + self.loop_gate_yaw_rad_per_m * path_m)
                 .min(std::f64::consts::PI),
         )
     }
@@ -328,6 +332,9 @@ pub struct LoopCandidate {
     pub predicted_agent_from_vertex: Pose2,
     /// Distance between the two (m).
     pub distance_m: f64,
+    /// Length (m) of the shortest path through the map's links from there to the vertex: the odometry
+    /// that relates the two, which the gate (and a caller's search radius) grows with.
+    pub path_m: f64,
 }
 
 /// What a frame did to the map.
@@ -588,24 +595,28 @@ impl ExperienceMap {
         }
         let predicted = agent.compose(odometry_step);
         let odometer = self.odometer_m + odometry_step.x.hypot(odometry_step.y);
-        // The vertex may lie up to one vertex spacing from the place the closure puts the agent.
-        let (radius_m, _) = self.gate_now(odometer);
-        let radius_m = radius_m + self.params.max_vertex_spacing_m;
+        let path_m = self.paths_from_agent_m(&self.current_from_agent.compose(odometry_step));
         let mut out = Vec::new();
         for &v in vertices {
             let vertex = self.vertices.get(v).ok_or(MapError::UnknownVertex {
                 vertex: v,
                 len: self.vertices.len(),
             })?;
-            if odometer - vertex.odometer_m < self.params.min_loop_separation_m {
+            // No path: no odometry relates the two, so nothing says where the vertex is seen from here.
+            if odometer - vertex.odometer_m < self.params.min_loop_separation_m
+                || path_m[v].is_infinite()
+            {
                 continue;
             }
+            // The vertex may lie up to one vertex spacing from the place the closure puts the agent.
+            let radius_m = self.params.loop_gate(path_m[v]).0 + self.params.max_vertex_spacing_m;
             let distance = distance_m(&predicted, &vertex.world_from_vertex);
             if distance <= radius_m && !out.iter().any(|c: &LoopCandidate| c.vertex == v) {
                 out.push(LoopCandidate {
                     vertex: v,
                     predicted_agent_from_vertex: predicted.between(&vertex.world_from_vertex),
                     distance_m: distance,
+                    path_m: path_m[v],
                 });
             }
         }
@@ -639,15 +650,28 @@ impl ExperienceMap {
         Ok(near.into_iter().map(|(_, i)| i).collect())
     }
 
-    /// The loop gate at the agent now: (radius m, yaw rad) around the odometry's prediction.
+    /// The loop gate for a vertex as far along the links as the travel since the last closure: (radius m,
+    /// yaw rad) around the odometry's prediction. What a search that does not ask the graph may assume;
+    /// a vertex farther along the graph has a wider gate ([`Self::loop_candidates`]).
     pub fn loop_gate(&self) -> (f64, f64) {
-        self.gate_now(self.odometer_m)
+        self.params
+            .loop_gate(self.odometer_m - self.odometer_at_last_closure_m)
     }
 
-    /// The loop gate now, for an agent whose odometer reads `odometer_m`.
-    fn gate_now(&self, odometer_m: f64) -> (f64, f64) {
-        self.params
-            .loop_gate(odometer_m - self.odometer_at_last_closure_m)
+    /// Length (m) of the shortest path through the links from the agent, `current_from_agent` off the
+    /// current vertex, to every vertex (`f64::INFINITY` where none leads; all of them while lost).
+    fn paths_from_agent_m(&self, current_from_agent: &Pose2) -> Vec<f64> {
+        let Some(current) = self.current else {
+            return vec![f64::INFINITY; self.vertices.len()];
+        };
+        let links = self
+            .links
+            .iter()
+            .map(|l| (l.from, l.to, l.from_from_to.x.hypot(l.from_from_to.y)));
+        let mut length_m = path_lengths_m(self.vertices.len(), links, current);
+        let offset_m = current_from_agent.x.hypot(current_from_agent.y);
+        length_m.iter_mut().for_each(|l| *l += offset_m);
+        length_m
     }
 
     /// Vertices matching the frame's view cell and codes, sorted by normalised code distance.
@@ -794,18 +818,24 @@ impl ExperienceMap {
         Ok(index)
     }
 
-    /// Is the closure onto `target`, putting the agent at `world_from_agent_claimed`, allowed?
+    /// Is the closure onto `target`, putting the agent at `world_from_agent_claimed`, allowed? `path_m`:
+    /// the agent's paths through the links ([`Self::paths_from_agent_m`]).
     fn gate(
         &self,
         predicted: &Pose2,
         target: usize,
         world_from_agent_claimed: &Pose2,
+        path_m: &[f64],
     ) -> Option<ClosureRejection> {
         let vertex = &self.vertices[target];
         if self.odometer_m - vertex.odometer_m < self.params.min_loop_separation_m {
             return Some(ClosureRejection::TooRecent);
         }
-        let (radius_m, yaw_rad) = self.gate_now(self.odometer_m);
+        let path_m = path_m[target];
+        if path_m.is_infinite() {
+            return Some(ClosureRejection::OutsideGate);
+        }
+        let (radius_m, yaw_rad) = self.params.loop_gate(path_m);
         let off_m = distance_m(predicted, world_from_agent_claimed);
         let off_yaw = wrap_angle(predicted.yaw - world_from_agent_claimed.yaw).abs();
         (off_m > radius_m || off_yaw > yaw_rad).then_some(ClosureRejection::OutsideGate)
@@ -830,7 +860,8 @@ impl ExperienceMap {
         } else if let Some(closure) = input.loop_closure {
             let world_from_target = self.vertices[closure.target].world_from_vertex;
             let claimed = world_from_target.compose(&closure.agent_from_target.inverse());
-            match self.gate(&agent, closure.target, &claimed) {
+            let path_m = self.paths_from_agent_m(&self.current_from_agent);
+            match self.gate(&agent, closure.target, &claimed, &path_m) {
                 Some(reason) => outcome.rejected_closure = Some(reason),
                 None => return self.close_at_agent(current, &closure, input, outcome),
             }
@@ -925,9 +956,14 @@ impl ExperienceMap {
         if candidates.len() > 1 {
             outcome.ambiguous_candidates = candidates.clone();
         }
+        let path_m = if candidates.is_empty() {
+            Vec::new()
+        } else {
+            self.paths_from_agent_m(&self.current_from_agent)
+        };
         candidates.retain(|&v| {
             let claimed = self.vertices[v].world_from_vertex;
-            match self.gate(&agent, v, &claimed) {
+            match self.gate(&agent, v, &claimed, &path_m) {
                 Some(reason) => {
                     outcome.rejected_closure = Some(reason);
                     false

@@ -9,7 +9,7 @@
 //!   (`solve`).
 //! - [`relax`]: the paper's correction, RatSLAM-style iterative relaxation (`relax`).
 //! - [`ExperienceMap`]: the experience map driven per camera frame (creation rule, loop closure,
-//!   ambiguity) (`experience`).
+//!   ambiguity) (`experience`); its loop gate grows with the shortest path through the links (`paths`).
 //! - [`to_bytes`], [`from_bytes`], `ExperienceMap::save`/`load`: versioned, checksummed map files
 //!   (`persist`), written whole or not at all and never through a link (`files`).
 //! - Long solves take a stop hook ([`optimize_with_stop`], [`relax_with_stop`],
@@ -27,6 +27,7 @@ mod g2o;
 mod graph;
 mod init;
 mod memory;
+mod paths;
 mod persist;
 mod relax;
 mod se2;

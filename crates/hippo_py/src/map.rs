@@ -31,7 +31,7 @@ use std::time::{Duration, Instant};
 /// A measured loop closure from Python: target vertex, `agent_from_target`, information (3, 3).
 type LoopArg<'py> = (usize, PoseTuple, PyReadonlyArrayDyn<'py, f64>);
 /// A loop candidate for Python: vertex, predicted `agent_from_vertex`, distance (m).
-type CandidateTuple = (usize, PoseTuple, f64);
+type CandidateTuple = (usize, PoseTuple, f64, f64);
 
 /// The view-cell id the map is given for a frame without one (Python's `None`): the map treats it as
 /// one more id, never made by the view cells (their ids count up from 0).
@@ -553,7 +553,8 @@ impl PyExperienceMap {
 
     /// Vertices among `vertices` that a closure at the next frame may join (far enough back along the
     /// path, inside the loop gate around where `odometry_step` takes the agent), nearest first, as
-    /// `(vertex, predicted_agent_from_vertex (x, y, yaw), distance_m)`.
+    /// `(vertex, predicted_agent_from_vertex (x, y, yaw), distance_m, path_m)`, `path_m` the shortest
+    /// path through the map's links from there to the vertex (the gate grows with it).
     fn loop_candidates(
         &self,
         vertices: Vec<usize>,
@@ -570,6 +571,7 @@ impl PyExperienceMap {
                     c.vertex,
                     pose_tuple(c.predicted_agent_from_vertex),
                     c.distance_m,
+                    c.path_m,
                 )
             })
             .collect())

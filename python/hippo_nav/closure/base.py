@@ -40,7 +40,6 @@ class ClosureContext:
     keyframes: KeyframeStore  # every vertex's keyframe, and this frame's (`current()`)
     # Travel since the last accepted closure is at least `closure.spacing_m` (closer ones add little).
     spaced: bool = True
-    travel_since_closure_m: float = 0.0  # since the last accepted closure (since the start: the odometer)
 
     @property
     def lost(self) -> bool:

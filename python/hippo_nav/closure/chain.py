@@ -71,7 +71,6 @@ class ClosureChain:
             experience_map,
             self.store,
             spaced=odometer - self._closure_odometer_m >= self.store.config.spacing_m,
-            travel_since_closure_m=odometer - max(self._closure_odometer_m, 0.0),
         )
         self._proposed = False
         note = ""

@@ -2,9 +2,10 @@
 view, measures the vertex nearest to where the odometry puts the agent among those the loop gate admits, when
 it is within `radius_m`, at the lower bar of `min_inliers` PnP inliers.
 
-An odometry drifts: after kilometres without a closure a revisit lies tens of metres from where it puts the
-agent (`radius_per_m` of the travel since the last closure, at most `max_radius_m`), so each frame also
-measures one gated vertex of the ring out to that reach, the next one in turn each frame. The view cells
+An odometry drifts: a revisit lies tens of metres from where it puts the agent after kilometres of odometry
+between the two (`radius_per_m` of the shortest path through the map's links from the agent to the vertex, at
+most `max_radius_m`; a closure shortens the paths to the places near it only), so each frame also measures one
+gated vertex of the ring out to that reach, the next one in turn each frame. The view cells
 recognise a place by its look; a revisit under another sun, in another lane, is not recognised (the `strong`
 renders), but its stereo geometry still measures it. The bar may be lower because the gate has already put the
 vertex where the odometry says the agent is: unrelated places gave at most 9 inliers (1 352 pairs of real
@@ -53,10 +54,10 @@ class ProximityConfig(ConfigSection):
     radius_per_m: float = Field(
         0.01,
         ge=0.0,
-        description="beyond `radius_m`, the proximity search also reaches this share of the travel "
-        "since the last closure (an odometry drifts about 1 % of its path: on the 02 render at `strong` the "
-        "two passes of a street were 27-31 m apart after 2.9-3.4 km), measuring one vertex of that ring a "
-        "frame, in turn; 0: only `radius_m`",
+        description="beyond `radius_m`, the proximity search also reaches a vertex this share of the path "
+        "through the map from the agent to it (an odometry drifts about 1 % of its path: on the 02 render at "
+        "`strong` the two passes of a street were 27-31 m apart after 2.9-3.4 km), measuring one vertex of "
+        "that ring a frame, in turn; 0: only `radius_m`",
     )
     max_radius_m: float = Field(50.0, gt=0.0, description="the proximity search reaches at most this far (m)")
     confirm: bool = Field(
@@ -107,16 +108,22 @@ class ProximityProposer:
     def _candidates(self, context: ClosureContext) -> list[int]:
         """Among the vertices the map's loop gate admits (far enough back along the path, inside the gate):
         the one nearest to where the odometry puts the agent, when it is within `radius_m`, then one vertex of
-        the ring beyond it, out to the odometry's likely drift since the last closure, taken in turn from
-        frame to frame, among those passed in about the agent's direction (within 30°)."""
+        the ring beyond it, each vertex out to the odometry's likely drift between the agent and it, taken in
+        turn from frame to frame, among those passed in about the agent's direction (within 30°)."""
         cfg = self.config
         experience_map, step = context.experience_map, context.planar_step
-        reach_m = min(cfg.radius_m + cfg.radius_per_m * context.travel_since_closure_m, cfg.max_radius_m)
-        near = experience_map.vertices_near(max(reach_m, cfg.radius_m), step)
+        widest_m = max(cfg.max_radius_m, cfg.radius_m) if cfg.radius_per_m > 0 else cfg.radius_m
+        near = experience_map.vertices_near(widest_m, step)
         gated = experience_map.loop_candidates(near, step) if near else []
         chosen = [int(gated[0][0])] if gated and gated[0][2] <= cfg.radius_m else []
-        # Only vertices passed in about the agent's direction: a forward camera measures nothing else.
-        ring = [int(c[0]) for c in gated if c[2] > cfg.radius_m and abs(c[1][2]) <= _RING_MAX_HEADING_RAD]
+        # Only vertices passed in about the agent's direction (a forward camera measures nothing else), each
+        # within the drift of the odometry that relates it to the agent (`c[3]`, the path through the map).
+        ring = [
+            int(c[0])
+            for c in gated
+            if cfg.radius_m < c[2] <= min(cfg.radius_m + cfg.radius_per_m * c[3], cfg.max_radius_m)
+            and abs(c[1][2]) <= _RING_MAX_HEADING_RAD
+        ]
         if ring:
             # The drift's direction is unknown: each frame measures the next vertex of the ring, so that a
             # revisit tens of metres from where the odometry puts it is met within a few frames of driving.

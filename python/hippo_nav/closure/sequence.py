@@ -1,6 +1,6 @@
 """Closures from a sequence of views (`"sequence"`): a revisit recognised by the last `length` views along the
-odometry's path matching a stretch of an earlier pass, inside a search region that grows with the travel since
-the last closure, then measured (SIFT + PnP) and confirmed like a proximity closure.
+odometry's path matching a stretch of an earlier pass, inside a search region that grows with the odometry
+that relates the agent to each place (the path through the map), then measured (SIFT + PnP) and confirmed like a proximity closure.
 
 Why sequences, and why edges. Under another sun, with moved cars and another lane (the `strong` renders), no
 single view points at the place: the word cells recognise almost nothing and the paper's templates rank the true
@@ -18,7 +18,9 @@ vanishing lines) is removed. Without that, on the 06 render at `strong`, the tru
 matches for 0.17 of the revisits instead of 0.47.
 
 The search. Samples whose vertex the map's loop gate admits and that the odometry puts within
-`radius_m + radius_per_m · travel since the last closure` (at most `max_radius_m`) are scored by the mean
+`radius_m + radius_per_m · path` (at most `max_radius_m`), `path` the shortest path through the map's links
+from the agent to the vertex (the odometry that relates the two, docs/map.md "Search by path"), are scored by
+the mean
 distance of their last `length` descriptors to the current ones; the best `shortlist` vertices are kept.
 Each of them votes for a drift of the odometry (where the map has that vertex, less where the odometry puts the
 agent), weighted by its rank; votes within 4 m add up and fade by 0.85 a sample, so a drift that sample after
@@ -92,8 +94,9 @@ class SequenceConfig(ConfigSection):
     radius_per_m: float = Field(
         0.04,
         ge=0.0,
-        description="growth of the search radius per metre travelled since the last closure (an odometry "
-        "1 % long and 0.02° a frame off put the 05 render's revisits 10-80 m away after 1-2.7 km)",
+        description="growth of a vertex's search radius per metre of the path through the map from the agent "
+        "to it (an odometry 1 % long and 0.02° a frame off put the 05 render's revisits 10-80 m away after "
+        "1-2.7 km)",
     )
     max_radius_m: float = Field(150.0, gt=0.0, description="the search reaches at most this far (m)")
     min_inliers: int = Field(
@@ -178,18 +181,26 @@ class SequenceProposer:
             return ClosureAttempt(closure, "measured")
         return ClosureAttempt(None, why)
 
-    def _region(self, context: ClosureContext) -> tuple[np.ndarray, np.ndarray, float]:
-        """(the vertices the loop gate admits within the search radius plus `_TARGET_M`, their distances
-        from where the odometry puts the agent, the search radius): asked of the map once a frame."""
+    def _region(self, context: ClosureContext) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(the vertices the loop gate admits within their search radius plus `_TARGET_M`, their distances
+        from where the odometry puts the agent, their search radii): asked of the map once a frame."""
         cfg, experience_map = self.config, context.experience_map
-        reach_m = min(cfg.radius_m + cfg.radius_per_m * context.travel_since_closure_m, cfg.max_radius_m)
-        near = experience_map.vertices_near(reach_m + _TARGET_M, context.planar_step)
+        near = experience_map.vertices_near(cfg.max_radius_m + _TARGET_M, context.planar_step)
         gated = experience_map.loop_candidates(near, context.planar_step) if near else []
         vertices = np.array([int(c[0]) for c in gated], np.int64)
-        return vertices, np.array([float(c[2]) for c in gated]), reach_m
+        distances_m = np.array([float(c[2]) for c in gated])
+        # A closure pins the agent to the places near it only: a place far along the graph from the last
+        # closure is still where the whole drift since then put it.
+        path_m = np.array([float(c[3]) for c in gated])
+        reach_m = np.minimum(cfg.radius_m + cfg.radius_per_m * path_m, cfg.max_radius_m)
+        inside = distances_m <= reach_m + _TARGET_M
+        return vertices[inside], distances_m[inside], reach_m[inside]
 
     def _targets(
-        self, context: ClosureContext, predicted_xy: np.ndarray, region: tuple[np.ndarray, np.ndarray, float]
+        self,
+        context: ClosureContext,
+        predicted_xy: np.ndarray,
+        region: tuple[np.ndarray, np.ndarray, np.ndarray],
     ) -> list[int]:
         """The gated vertex nearest to where the best-supported drift puts the agent now (within `_TARGET_M`),
         then the last sample's best matches, `candidates_per_frame` in all, none measured yet this frame."""
@@ -226,7 +237,7 @@ class SequenceProposer:
         context: ClosureContext,
         vertex: int,
         predicted_xy: np.ndarray,
-        region: tuple[np.ndarray, np.ndarray, float] | None,
+        region: tuple[np.ndarray, np.ndarray, np.ndarray] | None,
     ) -> None:
         """Keep this frame's view and, with `length` views behind it and a `region` to search (None: lost),
         shortlist the places it matches and let them vote."""

@@ -115,7 +115,8 @@ def _shown(value: object) -> str:
     """`value` as quoted in a message: at most 40 characters (an integer of 5 000 digits has no str)."""
     if isinstance(value, int) and abs(value) >= 10**40:
         return f"<an integer of about {value.bit_length() * 0.30103:.0f} digits>"
-    text = str(value)
+    # A value with a line break or another control character would break the message's one line: escaped.
+    text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in str(value))
     return text if len(text) <= 40 else text[:40] + "…"
 
 
