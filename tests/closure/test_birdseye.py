@@ -15,6 +15,10 @@ from hippo_nav.closure import DEFAULT_PROPOSERS, ClosureConfig, KeyframeExtracto
 from hippo_nav.closure.birdseye import (
     BirdsEyeConfig,
     Submap,
+    _blurred_spectra,
+    _correlations,
+    _energy,
+    _raster,
     register,
     self_similarity,
     structure_points,
@@ -204,6 +208,29 @@ def test_walls_weigh_little_and_posts_and_corners_fully() -> None:
     assert np.median(weights[600:615]) > 0.9
     at_corner = np.hypot(points[615:, 0] + 20.0, points[615:, 1] + 3.0) < 2.0
     assert np.median(weights[615:][at_corner]) > 0.5
+
+
+@pytest.mark.parametrize("size", [64, 100, 135, 288])
+def test_the_packed_single_precision_correlation_is_numpys_double_precision_one(size) -> None:
+    # The search correlates OpenCV's packed spectra in single precision (`_packed_layout` says where each
+    # entry sits): the correlations and the images' energies must be those of numpy's rfft2 in double precision,
+    # for even sizes and odd ones (their packing differs in the last column and row).
+    rng = np.random.default_rng(size)
+    points = rng.uniform(-0.45 * size * 0.5, 0.45 * size * 0.5, (3, 400, 2))
+    half = size // 4
+    query, target = (
+        _blurred_spectra(points, None, half, size),
+        _blurred_spectra(points[:1] + 1.3, None, half, size),
+    )
+    fy, fx = np.fft.fftfreq(size)[:, None], np.fft.rfftfreq(size)[None, :]
+    blur = np.exp(-2 * (np.pi * 1.0) ** 2 * (fx**2 + fy**2))  # `_BLUR_M` over `_COARSE_CELL_M`: one cell
+    image = np.minimum(_raster(points, 0.5, half, size, 3), 1.0).astype(np.float64)
+    image_t = np.minimum(_raster(points[:1] + 1.3, 0.5, half, size, 1), 1.0).astype(np.float64)
+    f_q, f_t = np.fft.rfft2(image) * blur, np.fft.rfft2(image_t) * blur
+    expected = np.fft.irfft2(np.conj(f_q) * f_t, s=(size, size))
+    np.testing.assert_allclose(_correlations(query, target[0]), expected, atol=2e-6 * np.abs(expected).max())
+    blurred = np.fft.irfft2(f_q, s=(size, size))
+    np.testing.assert_allclose(_energy(query), (blurred**2).sum(axis=(1, 2)), rtol=1e-5)
 
 
 def test_a_place_that_repeats_within_the_search_is_refused(structure):
