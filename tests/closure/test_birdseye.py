@@ -9,6 +9,7 @@ both directions, with a corner at one end."""
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 import pytest
 from hippo_nav.closure import DEFAULT_PROPOSERS, ClosureConfig, KeyframeExtractor
@@ -231,6 +232,28 @@ def test_the_packed_single_precision_correlation_is_numpys_double_precision_one(
     np.testing.assert_allclose(_correlations(query, target[0]), expected, atol=2e-6 * np.abs(expected).max())
     blurred = np.fft.irfft2(f_q, s=(size, size))
     np.testing.assert_allclose(_energy(query), (blurred**2).sum(axis=(1, 2)), rtol=1e-5)
+
+
+def test_structure_weights_are_the_structure_tensors_eigenvalues_as_opencv_computes_them() -> None:
+    # The weights take the tensor's eigenvalues at the points' cells only: they must be those of OpenCV's
+    # `cornerEigenValsAndVecs` over the whole image, bit for bit (a street, posts and noise).
+    rng = np.random.default_rng(7)
+    points = np.concatenate(
+        [
+            np.stack([rng.uniform(-25.0, 25.0, 500), rng.choice([-7.0, 7.0], 500)], axis=1),
+            rng.uniform(-20.0, 20.0, (40, 2)).repeat(8, axis=0),
+        ]
+    )
+    points = (points + rng.normal(0.0, 0.3, points.shape)).astype(np.float32)
+    half = int(np.ceil(30.0 / 0.5)) + 9
+    image = np.minimum(_raster(points[None], 0.5, half, 2 * half), 1.0)[0]
+    eigen = cv2.cornerEigenValsAndVecs(cv2.GaussianBlur(image, (0, 0), 1.0), 9, 3)
+    idx = np.clip(np.floor(points / 0.5).astype(np.int64) + half, 0, 2 * half - 1)
+    e = eigen[idx[:, 0], idx[:, 1]]
+    expected = np.clip(
+        np.minimum(e[:, 0], e[:, 1]) / np.maximum(np.maximum(e[:, 0], e[:, 1]), 1e-12) / 0.5, 0, 1
+    )
+    np.testing.assert_array_equal(structure_weights(points, 30.0), expected.astype(np.float32))
 
 
 def test_a_place_that_repeats_within_the_search_is_refused(structure):
