@@ -460,7 +460,7 @@ def _coarse(
     fq = _blurred_spectra(rotated, query_weights, half, size)
     ft = _blurred_spectra(target_m[None], target_weights, half, size)
     corr = _correlations(fq, ft[0])  # corr[k, s] = Σ_x Q_k(x)·T(x + s)
-    norm_q = np.sqrt(np.maximum(_energy(fq).astype(np.float64), 1e-12))
+    norm_q = np.sqrt(np.maximum(_energy(fq), 1e-12))
     # One norm for the whole target: a shift's score is how much of the query's structure the target holds
     # there (occupancy is clipped, so a stretch seen on several passes weighs no more than one seen once).
     norm_t_at = np.sqrt(max(float(_energy(ft)[0]), 1e-12))
