@@ -17,9 +17,7 @@ place is also described from above (docs/map.md, "Bird's-eye closures"):
 - **Search** (`BirdsEyeSearch`): the query is registered at once onto the map's whole structure around where the
   odometry puts it (`search_m`, `search_rad`, or the loop gate if smaller): one correlation
   per heading over that area, so the peak must stand out from every other place the agent may be, not from a
-  few ranked candidates. Each shift's score is weighed by how likely the odometry is to be that far off (a
-  Gaussian whose two deviations are `search_m`): a look-alike street 34 m off must fit four times better than
-  the place the odometry predicts, one at the search's edge seven times. The place found is then registered again onto the submap of the old vertex nearest to
+  few ranked candidates. The place found is then registered again onto the submap of the old vertex nearest to
   it (far from that vertex the old stretch bends with the odometry's drift); that is the measurement.
 - **Self-similarity** (`self_similarity`): a straight street of walls slides along itself, and no registration
   can place it along its length; such a submap (`max_self_similarity`) is not registered at all.
@@ -81,9 +79,6 @@ _CONFIRM_WINDOW_M = 30.0  # travel within which two registrations confirm each o
 _AGREEMENT_M, _AGREEMENT_RAD = 1.5, 0.05  # confirming registrations place the agent this close
 _OFF_PATH_M = 8.0  # a registration this far from every old vertex is not on the old path
 _LOCAL_REACH_M, _LOCAL_REACH_RAD = 3.0, 0.1  # the local registration's search around the place found
-# The search's reach (`search_m`) is two deviations of the odometry's likely drift: a shift at its edge weighs
-# exp(-2), 0.14, of one where the odometry puts the agent (module doc, "Search").
-_DRIFT_SIGMA_OF_SEARCH = 0.5
 
 # The fine stage's distance-transform cell (m) and Gauss–Newton iterations.
 _FINE_CELL_M = 0.2
@@ -125,8 +120,7 @@ class BirdsEyeConfig(ConfigSection):
         40.0,
         gt=0.0,
         description="the registration searches the map this far around where the odometry puts the agent (or "
-        "the loop gate, if smaller): two deviations of the odometry's likely drift between closures, by which "
-        "every shift's score is weighed, not the gate's bound",
+        "the loop gate, if smaller): the odometry's likely drift between closures, not the gate's bound",
     )
     search_rad: float = Field(
         0.35,
@@ -435,14 +429,11 @@ def _coarse(
     target_radius_m: float | None = None,
     query_weights: np.ndarray | None = None,
     target_weights: np.ndarray | None = None,
-    drift_sigma_m: float | None = None,
 ) -> tuple[float, np.ndarray, float]:
     """(yaw rad, shift m, peak ratio) of the best alignment target ≈ R(yaw)·query + shift, searched over the
     headings and translations the prior admits (module doc); the ratio is over the best alignment elsewhere
     that the prior admits too. `radius_m`: the query's extent; `target_radius_m`: the target's (None: the
-    same); weights: per point (`structure_weights`), None: plain occupancy. `drift_sigma_m`: every shift's
-    score is weighed by how likely the odometry is to be that far off, a Gaussian of this deviation around
-    the prior's centre (None: every shift within reach alike)."""
+    same); weights: per point (`structure_weights`), None: plain occupancy."""
     cell = _COARSE_CELL_M
     steps = int(_ROTATIONS)
     all_angles = 2 * np.pi * np.arange(steps) / steps
@@ -479,9 +470,6 @@ def _coarse(
     crop = corr.take(ring % size, axis=1).take(ring % size, axis=2).astype(np.float64)
     window = np.hypot(ring[:, None] * cell - centre[0], ring[None, :] * cell - centre[1]) <= reach_m
     score = np.where(window[None], crop, -np.inf) / (norm_q[:, None, None] * norm_t_at)
-    if drift_sigma_m is not None:
-        off_m2 = (ring[:, None] * cell - centre[0]) ** 2 + (ring[None, :] * cell - centre[1]) ** 2
-        score *= np.exp(-0.5 * off_m2 / drift_sigma_m**2)[None]
     best = np.unravel_index(int(np.argmax(score)), score.shape)
     k, i, j = (int(v) for v in best)
     peak = float(score[k, i, j])
@@ -656,7 +644,6 @@ class BirdsEyeSearch:
             target_radius_m=region.radius_m,
             query_weights=_weights(query),
             target_weights=_weights(region),
-            drift_sigma_m=_DRIFT_SIGMA_OF_SEARCH * search_m,
         )
         # The closure joins the agent to the old vertex nearest to where the search puts the query's centre.
         # Far from that vertex the map's old stretch bends with the odometry's drift, so the measurement is
