@@ -26,7 +26,10 @@ class _Map:
 def _measured_over(frames: int, candidates) -> tuple[set[int], list[float]]:
     proposer = ProximityProposer(ProximityConfig(radius_m=8.0, radius_per_m=0.01, max_radius_m=50.0))
     experience_map = _Map(candidates)
-    context = SimpleNamespace(experience_map=experience_map, planar_step=(0.0, 0.0, 0.0))
+    every_vertex_keyframed = SimpleNamespace(keyframed=list)
+    context = SimpleNamespace(
+        experience_map=experience_map, planar_step=(0.0, 0.0, 0.0), keyframes=every_vertex_keyframed
+    )
     chosen = {v for _ in range(frames) for v in proposer._candidates(context)}
     return chosen, experience_map.radii
 

@@ -86,6 +86,9 @@ class _Store:
     def keyframe(self, vertex):
         return object()
 
+    def keyframed(self, vertices):
+        return list(vertices)
+
     def measure_confirmed(self, experience_map, vertex, current, min_inliers, confirm, via):
         self.measured.add(vertex)
         return None, "too_few_inliers"

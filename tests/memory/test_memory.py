@@ -67,10 +67,12 @@ def _assert_same_records(a: list, b: list) -> None:
 
 
 @pytest.mark.slow
-def test_a_saved_session_continues_bit_identically(demo, steps, tmp_path):
+@pytest.mark.parametrize("keyframe_spacing_m", [0.0, 5.0])
+def test_a_saved_session_continues_bit_identically(demo, steps, tmp_path, keyframe_spacing_m):
     """Stopped after frame 90, saved, loaded, and given the same frames, a session decides exactly what one
-    that never stopped decides (view cells, closures, map, networks), through the loop's closures."""
-    config = config_from_dict(QUIET)
+    that never stopped decides (view cells, closures, map, networks, which vertices keep a keyframe), through
+    the loop's closures."""
+    config = config_from_dict({**QUIET, "closure": {"keyframe_spacing_m": keyframe_spacing_m}})
     never_stopped = SlamSystem(demo.calibration, config)
     reference = _records(never_stopped, steps[:170])
     first = SlamSystem(demo.calibration, config)
@@ -84,6 +86,12 @@ def test_a_saved_session_continues_bit_identically(demo, steps, tmp_path):
     for key, value in never_stopped.map.export().items():
         np.testing.assert_array_equal(np.asarray(value), np.asarray(resumed.map.export()[key]), err_msg=key)
     np.testing.assert_array_equal(never_stopped.engine.place_activity(), resumed.engine.place_activity())
+    never_stopped.finish()
+    resumed.finish()
+    kept = sorted(never_stopped.closure.store.keyframes)
+    assert sorted(resumed.closure.store.keyframes) == kept
+    if keyframe_spacing_m > 0:
+        assert len(kept) < 0.7 * len(never_stopped.map), (len(kept), len(never_stopped.map))
 
 
 @pytest.fixture(scope="module")

@@ -256,7 +256,7 @@ def test_keyframes_take_the_offset_the_odometry_applies(demo):
     store.begin_frame(frame, 0.8)
     outcome = SimpleNamespace(created=True, vertex=0, loop_closure=None)
     worker = SimpleNamespace(submit=lambda work, *args: _done(work(*args)))
-    store.after_map(frame, outcome, worker)  # type: ignore[arg-type]
+    store.after_map(frame, outcome, worker, 0.0)  # type: ignore[arg-type]
     assert offsets == [0.8]
 
 

@@ -29,6 +29,7 @@ __all__ = ["ClosureChain"]
 # Keys of memories saved before the proposers had names of their own (`restore_state`).
 _UNNAMED_STATE = {"ring_turn": "proximity.ring_turn", "hypotheses": "relocalisation.hypotheses"}
 _STORE_KEYS = ("vertex", "count", "pixels_px", "descriptors", "points_m")
+_STORE_OPTIONAL = ("last_keyframe_odometer_m",)  # absent from memories saved before it existed
 
 
 class ClosureChain:
@@ -89,7 +90,7 @@ class ClosureChain:
         frame's keyframe (the store); each proposer is told."""
         if self._proposed and outcome.loop_closure is not None:
             self._closure_odometer_m = experience_map.odometer_m
-        self.store.after_map(frame, outcome, worker)
+        self.store.after_map(frame, outcome, worker, experience_map.odometer_m)
         for _, proposer in self.proposers:
             proposer.after_map(outcome)
 
@@ -122,7 +123,7 @@ class ClosureChain:
     def restore_state(self, saved: dict[str, np.ndarray]) -> None:
         """The state of `export_state`; a proposer whose state the memory lacks starts fresh."""
         saved = {_UNNAMED_STATE.get(k, k): v for k, v in saved.items()}
-        self.store.restore_state({k: saved[k] for k in _STORE_KEYS})
+        self.store.restore_state({k: saved[k] for k in _STORE_KEYS + _STORE_OPTIONAL if k in saved})
         self._closure_odometer_m = float(saved["closure_odometer_m"])
         for name, proposer in self.proposers:
             own = {k[len(name) + 1 :]: v for k, v in saved.items() if k.startswith(f"{name}.")}

@@ -37,7 +37,7 @@ class ConfirmConfig(ConfigSection):
         7.0,
         gt=0.0,
         description="the confirming neighbour may be measured this far away (`max_distance_m` plus a vertex "
-        "spacing)",
+        "spacing; `keyframe_spacing_m` is added, as the nearest keyframed neighbour lies that much farther)",
     )
     agreement_m: float = Field(
         1.5,
@@ -109,6 +109,14 @@ class ClosureConfig(PartSections):
     )
     spacing_m: float = Field(
         3.0, ge=0.0, description="travel (m) between accepted closures; closer ones add little"
+    )
+    keyframe_spacing_m: float = Field(
+        0.0,
+        ge=0.0,
+        le=1000.0,
+        description="a new vertex keeps a stereo keyframe only when the last one kept was made at least this "
+        "far back along the odometry (0: every vertex keeps one); proposers measure the vertices that keep "
+        'one. A SIFT keyframe is about a quarter of a real KITTI frame\'s CPU (docs/results.md, "Cost")',
     )
     stereo_row_tolerance_px: float = Field(1.5, gt=0.0)
     refine_stereo: bool = Field(

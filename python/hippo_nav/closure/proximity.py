@@ -113,7 +113,7 @@ class ProximityProposer:
         cfg = self.config
         experience_map, step = context.experience_map, context.planar_step
         widest_m = max(cfg.max_radius_m, cfg.radius_m) if cfg.radius_per_m > 0 else cfg.radius_m
-        near = experience_map.vertices_near(widest_m, step)
+        near = context.keyframes.keyframed(experience_map.vertices_near(widest_m, step))
         gated = experience_map.loop_candidates(near, step) if near else []
         chosen = [int(gated[0][0])] if gated and gated[0][2] <= cfg.radius_m else []
         # Only vertices passed in about the agent's direction (a forward camera measures nothing else), each

@@ -136,7 +136,7 @@ def _measure_pairs(
         reach = min(config.max_radius_m, config.radius_m + config.radius_per_m * back_m)
         distance = np.hypot(*(loaded[:, :2] - poses[lost, :2]).T)
         facing = np.abs(wrap_angle(loaded[:, 2] - poses[lost, 2])) <= config.max_heading_rad
-        near = np.flatnonzero((distance <= reach) & facing)
+        near = np.array(store.keyframed(np.flatnonzero((distance <= reach) & facing).tolist()), np.int64)
         if len(near) == 0:
             continue
         current = store.keyframe(lost)

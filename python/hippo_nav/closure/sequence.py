@@ -205,7 +205,7 @@ class SequenceProposer:
         """The gated vertex nearest to where the best-supported drift puts the agent now (within `_TARGET_M`),
         then the last sample's best matches, `candidates_per_frame` in all, none measured yet this frame."""
         cfg, experience_map, store = self.config, context.experience_map, context.keyframes
-        gated = region[0]
+        gated = np.array(store.keyframed(region[0].tolist()), np.int64)
         if len(gated) == 0:
             return []
         xy = experience_map.poses()[gated, :2]

@@ -59,6 +59,7 @@ class ViewCellProposer:
         cfg, store, experience_map = self.config, context.keyframes, context.experience_map
         reach = cfg.anchor_neighbours
         nearby = [v for v in range(anchor - reach, anchor + reach + 1) if 0 <= v < len(experience_map)]
+        nearby = store.keyframed(nearby)
         gated = experience_map.loop_candidates(nearby, context.planar_step)
         candidates = [int(c[0]) for c in gated[: cfg.candidates_per_frame]]
         if not candidates:
