@@ -20,8 +20,11 @@ matches for 0.17 of the revisits instead of 0.47.
 The search. Samples whose vertex the map's loop gate admits and that the odometry puts within
 `radius_m + radius_per_m · path` (at most `max_radius_m`), `path` the shortest path through the map's links
 from the agent to the vertex (the odometry that relates the two, docs/map.md "Search by path"), are scored by
-the mean
-distance of their last `length` descriptors to the current ones; the best `shortlist` vertices are kept.
+the mean distance of their last `length` descriptors to the current ones, raised by `prior_weight` × (the
+sample's distance from the prediction / its search radius)²; the best `shortlist` vertices are kept. The region
+is wide because a biased odometry can put a revisit 4-9 % of the path away; the prior is what keeps a wide
+region from being won by look-alikes at its edge: the score is a negative log-posterior, the views' evidence
+plus the odometry's (a Gaussian whose two deviations are the radius, at the views' temperature 0.1).
 Each of them votes for a drift of the odometry (where the map has that vertex, less where the odometry puts the
 agent), weighted by its rank; votes within 4 m add up and fade by 0.85 a sample, so a drift that sample after
 sample agrees with the views outweighs the scattered look-alikes. Each frame measures, `candidates_per_frame`
@@ -92,13 +95,20 @@ class SequenceConfig(ConfigSection):
     candidates_per_frame: int = Field(2, ge=1, le=20, description="of those, measured per frame at most")
     radius_m: float = Field(10.0, gt=0.0, description="search radius around the odometry's prediction (m)")
     radius_per_m: float = Field(
-        0.04,
+        0.1,
         ge=0.0,
         description="growth of a vertex's search radius per metre of the path through the map from the agent "
-        "to it (an odometry 1 % long and 0.02° a frame off put the 05 render's revisits 10-80 m away after "
-        "1-2.7 km)",
+        "to it (an odometry 1 % long and 0.02° a frame off puts the renders' revisits 4-9 % of the path away)",
     )
     max_radius_m: float = Field(150.0, gt=0.0, description="the search reaches at most this far (m)")
+    prior_weight: float = Field(
+        0.2,
+        ge=0.0,
+        le=10.0,
+        description="a candidate's sequence distance is raised by this × (its distance from the odometry's "
+        "prediction / its search radius)²: the odometry's prior against look-alikes far out in a wide region "
+        "(0: every candidate in the region equal)",
+    )
     min_inliers: int = Field(
         15, ge=6, le=20000, description="PnP inliers a measurement needs (as `closure.proximity.min_inliers`)"
     )
@@ -257,7 +267,8 @@ class SequenceProposer:
         # Each sample votes for where its best matches say the odometry has drifted; older votes fade.
         self._support *= _VOTE_DECAY
         vertices, distances_m, reach_m = region
-        matches = self._search(vertices[distances_m <= reach_m])
+        inside = distances_m <= reach_m
+        matches = self._search(vertices[inside], (distances_m[inside] / reach_m[inside]) ** 2)
         self._shortlist = list(matches)
         if matches:
             vertex_xy = context.experience_map.poses()[matches, :2]
@@ -282,23 +293,33 @@ class SequenceProposer:
         self._drift_xy = np.vstack([self._drift_xy, drift_xy[None]])
         self._support = np.append(self._support, weight)
 
-    def _search(self, gated: np.ndarray) -> list[int]:
+    def _search(self, gated: np.ndarray, prior: np.ndarray) -> list[int]:
         """Among the `gated` vertices (the search region), the best sequence matches of the newest view, best
-        first, `shortlist` of them."""
+        first, `shortlist` of them; `prior` (per gated vertex, (offset / reach)²) is added × `prior_weight`."""
         cfg = self.config
         now = len(self._views) - 1
         if now + 1 < cfg.length or not self._contiguous(now) or len(gated) == 0:
             return []
         ends = np.flatnonzero(np.isin(self._view_vertex, gated))
         ends = ends[(ends >= cfg.length - 1) & (ends < now)]
-        ends = np.array([j for j in ends if self._contiguous(int(j))], np.int64)
+        # Whole stretches only: no gap longer than `_max_gap_m` among the `length` views up to each end.
+        gaps = np.r_[0, np.cumsum(np.diff(self._view_odometer_m) > self._max_gap_m)]  # gaps before view i
+        ends = ends[gaps[ends] == gaps[ends - cfg.length + 1]]
         if len(ends) == 0:
             return []
         mean = self._sum / len(self._views)
         steps = np.arange(cfg.length)
         query = self._unit(self._views[now - steps] - mean)  # (length, d)
-        stored = self._unit(self._views[ends[:, None] - steps[None]] - mean)  # (ends, length, d)
-        distance = 1.0 - np.einsum("eld,ld->e", stored, query) / cfg.length
+        # The stretches overlap (a region holds runs of consecutive views): each view is centred, normalised
+        # and compared with the query's views once, and each stretch sums its diagonal of those cosines.
+        index = ends[:, None] - steps[None]  # (ends, length)
+        views, at = np.unique(index, return_inverse=True)
+        cosines = self._unit(self._views[views] - mean) @ query.T  # (views, length)
+        distance = 1.0 - cosines[at.reshape(index.shape), steps[None]].sum(axis=1) / cfg.length
+        if cfg.prior_weight > 0.0:
+            order = np.argsort(gated)
+            at = order[np.searchsorted(gated, self._view_vertex[ends], sorter=order)]
+            distance = distance + cfg.prior_weight * prior[at]
         ranked: list[int] = []
         for j in ends[np.argsort(distance, kind="stable")]:
             vertex = int(self._view_vertex[j])
