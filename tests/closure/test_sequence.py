@@ -131,9 +131,7 @@ def _drive(images, config, path_m=lambda v: 0.0, jump_m=0.0, distance_m=lambda v
         )
         proposer.propose(context)
         if second:
-            vertices, distances_m, reach_m = proposer._region(context)
-            inside = distances_m <= reach_m
-            matches.append(proposer._search(vertices[inside], (distances_m[inside] / reach_m[inside]) ** 2))
+            matches.append(proposer._search_region(proposer._region(context)))
             measured.append(sorted(store.measured))
     return matches, measured, experience_map, proposer
 

@@ -266,9 +266,7 @@ class SequenceProposer:
             return
         # Each sample votes for where its best matches say the odometry has drifted; older votes fade.
         self._support *= _VOTE_DECAY
-        vertices, distances_m, reach_m = region
-        inside = distances_m <= reach_m
-        matches = self._search(vertices[inside], (distances_m[inside] / reach_m[inside]) ** 2)
+        matches = self._search_region(region)
         self._shortlist = list(matches)
         if matches:
             vertex_xy = context.experience_map.poses()[matches, :2]
@@ -292,6 +290,13 @@ class SequenceProposer:
                 return
         self._drift_xy = np.vstack([self._drift_xy, drift_xy[None]])
         self._support = np.append(self._support, weight)
+
+    def _search_region(self, region: tuple[np.ndarray, np.ndarray, np.ndarray]) -> list[int]:
+        """`_search` over the vertices of `region` within their own radius, each weighed by the odometry's prior
+        (its distance from the prediction over its radius, squared)."""
+        vertices, distances_m, reach_m = region
+        inside = distances_m <= reach_m
+        return self._search(vertices[inside], (distances_m[inside] / reach_m[inside]) ** 2)
 
     def _search(self, gated: np.ndarray, prior: np.ndarray) -> list[int]:
         """Among the `gated` vertices (the search region), the best sequence matches of the newest view, best
