@@ -111,7 +111,7 @@ impl<T: Real> RealFft2<T> {
             // A real signal's DC (and, for even n, Nyquist) bins are real; rounding leaves tiny imaginary
             // parts that realfft would reject, so drop them.
             scratch.row_spec[0].im = T::zero();
-            if n % 2 == 0 {
+            if n.is_multiple_of(2) {
                 scratch.row_spec[nh - 1].im = T::zero();
             }
             let _ = self.c2r.process_with_scratch(

@@ -110,7 +110,7 @@ impl GridParams {
             1,
             MAX_GRID_UNITS,
         )?;
-        if self.n_theta % self.k != 0 || self.n_theta / self.k < 2 {
+        if !self.n_theta.is_multiple_of(self.k) || self.n_theta / self.k < 2 {
             return Err(AttractorError::BadParameter {
                 name: "grid.n_theta".into(),
                 value: self.n_theta.to_string(),

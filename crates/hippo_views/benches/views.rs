@@ -4,7 +4,7 @@
 // A benchmark: a panic is the run failing (library code never panics on data, see Cargo.toml).
 #![allow(clippy::panic)]
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion};
-use hippo_views::words::{ratio_test_matches, Descriptor};
+use hippo_views::words::{ratio_test_matches, ratio_test_matches_one_by_one, Descriptor};
 use hippo_views::{ViewCellParams, ViewCells};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
@@ -72,6 +72,11 @@ fn bench_ratio_matches(c: &mut Criterion) {
     let (query, stored) = (random(500), random(500));
     c.bench_function("word_ratio_matches_500x500", |b| {
         b.iter(|| black_box(ratio_test_matches(&query, &stored, 0.8)))
+    });
+    // The baseline in the same run: one stored descriptor at a time (the build before the eight-lane one; the
+    // same build where the CPU lacks AVX-512's popcount).
+    c.bench_function("word_ratio_matches_500x500_one_by_one", |b| {
+        b.iter(|| black_box(ratio_test_matches_one_by_one(&query, &stored, 0.8)))
     });
 }
 

@@ -100,7 +100,7 @@ impl ViewCellParams {
                 "need 0 ≤ top < bottom ≤ 1 (fractions of the image height)",
             ));
         }
-        if self.patch_size_px % 2 == 0 || !(3..=255).contains(&self.patch_size_px) {
+        if self.patch_size_px.is_multiple_of(2) || !(3..=255).contains(&self.patch_size_px) {
             return Err(bad(
                 "patch_size_px",
                 self.patch_size_px,
