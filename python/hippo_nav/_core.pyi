@@ -36,6 +36,7 @@ __all__ = [
     "__version__",
     "_frame_offset",
     "_refine_matches",
+    "decode_png",
     "default_params_json",
     "find_bumps",
     "fuse_modules",
@@ -48,6 +49,7 @@ __version__: str
 class HippoNavError(ValueError): ...
 
 def default_params_json(section: str) -> str: ...
+def decode_png(data: bytes) -> npt.NDArray[np.uint8] | None: ...
 
 _F64: TypeAlias = npt.NDArray[np.float64]
 _Pair: TypeAlias = tuple[float, float]

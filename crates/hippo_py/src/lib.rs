@@ -1,11 +1,13 @@
 //! The native module `hippo_nav._core`. Each submodule binds one core crate: it validates and converts
-//! Python inputs (`convert`), releases the interpreter while the core works, and converts the results back.
+//! Python inputs (`convert`), releases the interpreter while the core works, and converts the results back;
+//! `images` binds the `png` crate (frames decoded faster than OpenCV's libpng).
 //! Core errors become `HippoNavError` (`errors`).
 use pyo3::prelude::*;
 
 mod attractor;
 mod convert;
 mod errors;
+mod images;
 mod map;
 mod views;
 mod window;
@@ -32,6 +34,7 @@ fn _core(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add("__version__", env!("CARGO_PKG_VERSION"))?;
     m.add_function(wrap_pyfunction!(default_params_json, m)?)?;
     errors::register(m)?;
+    images::register(m)?;
     attractor::register(m)?;
     map::register(m)?;
     views::register(m)?;
