@@ -85,6 +85,21 @@ fn bench_frame(c: &mut Criterion) {
     group.bench_function("spatial_memory_default", |b| {
         b.iter(|| sm.step(0.2, 12.0, 0.1, None).expect("stable"))
     });
+    // The first second of a run: after a reset most units are inhibited and decay towards silence (see
+    // `dynamics::SILENT_BELOW`: through the subnormal numbers, these ten frames took about ten times as long).
+    group.sample_size(10);
+    group.bench_function("first_frames_after_reset", |b| {
+        b.iter_batched(
+            || SpatialMemory::<f32>::new(SpatialMemoryParams::default()).expect("valid"),
+            |mut fresh| {
+                for _ in 0..10 {
+                    fresh.step(0.2, 12.0, 0.1, None).expect("stable");
+                }
+                fresh
+            },
+            criterion::BatchSize::LargeInput,
+        )
+    });
     group.finish();
 }
 

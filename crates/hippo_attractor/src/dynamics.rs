@@ -90,6 +90,19 @@ fn positive_part<T: Real>(drive: &[T], offset: T) -> (f64, usize) {
 
 const CHUNK: usize = 4096;
 
+/// Activity below this is zero: the unit is silent.
+///
+/// An inhibited unit decays by `a` every sub-step, and after a reset most units are inhibited: without a
+/// floor their activity went on down through f32's subnormal numbers (below 1.2e-38), whose arithmetic is
+/// about a hundred times slower on x86, in the update here and in the transforms of the recurrent input
+/// (products of tiny activity and small kernel coefficients), until it underflowed. The first ten frames after
+/// a reset took about 460 ms instead of 75 (`cargo bench -p hippo_attractor --bench attractor`,
+/// `first_frames_after_reset`). At 1e-30 the products stay normal, and a slice of units that has fallen
+/// silent is skipped by the grid's transforms. The floor is thirty orders below a bump's activity: the
+/// decoded bumps, the trajectories and every record but the recorded rates' last 1e-29 are the same bit for
+/// bit (real KITTI 06, docs/results.md "Cost").
+pub const SILENT_BELOW: f64 = 1e-30;
+
 /// Mean of a state vector (chunked, parallel).
 pub fn mean<T: Real>(m: &[T]) -> f64 {
     m.par_chunks(CHUNK).map(lanes::sum).sum::<f64>() / m.len() as f64
@@ -132,12 +145,14 @@ pub fn step_with_implicit_inhibition<T: Real>(
     let gain_t = T::of(gain);
     let j0s = T::of(j0 * s);
     let zero = T::zero();
+    let silent_below = T::of(SILENT_BELOW);
     m.par_chunks_mut(CHUNK)
         .zip(drive.par_chunks(CHUNK))
         .for_each(|(mc, dc)| {
             for (mi, &g) in mc.iter_mut().zip(dc) {
                 let v = g + j0s;
-                *mi = a_t * *mi + gain_t * if v > zero { v } else { zero };
+                let next = a_t * *mi + gain_t * if v > zero { v } else { zero };
+                *mi = if next < silent_below { zero } else { next };
             }
         });
     s
@@ -146,6 +161,33 @@ pub fn step_with_implicit_inhibition<T: Real>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A unit held below threshold decays geometrically and falls silent (exactly zero) at `SILENT_BELOW`,
+    /// never passing through the subnormal numbers, in f32 and in f64.
+    #[test]
+    fn inhibited_units_fall_silent_instead_of_decaying_into_subnormals() {
+        fn check<T: Real>() {
+            let mut m: Vec<T> = (0..64).map(|i| T::of(1.0 + i as f64)).collect();
+            let drive = vec![T::of(-1.0); 64]; // every unit inhibited
+            for step in 0..3000 {
+                step_with_implicit_inhibition(&mut m, &drive, -5.0, 0.9, 0.0);
+                let tiny = m
+                    .iter()
+                    .find(|&&x| x != T::zero() && x.f64() < SILENT_BELOW);
+                assert!(
+                    tiny.is_none(),
+                    "step {step}: activity {:?}",
+                    tiny.map(|x| x.f64())
+                );
+            }
+            assert!(
+                m.iter().all(|&x| x == T::zero()),
+                "0.9^3000 of at most 64 is silent"
+            );
+        }
+        check::<f32>();
+        check::<f64>();
+    }
 
     /// The returned mean is the mean of the updated state: the implicit equation is solved exactly.
     #[test]
