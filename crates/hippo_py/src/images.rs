@@ -5,8 +5,8 @@
 //! Only the kinds whose pixels OpenCV's `imdecode(IMREAD_UNCHANGED)` gives unchanged are decoded here: 8-bit
 //! gray, RGB and RGBA (returned in OpenCV's BGR(A) order), interlaced or not, with no transparency chunk and
 //! not animated. Anything else, and any file the crate refuses (a truncated or damaged file, a missing
-//! end chunk, a checksum that does not match), is `None`: the caller decodes it with OpenCV as before, so
-//! what OpenCV refuses, and the error the user sees, do not change.
+//! end chunk, a checksum that does not match, a panic inside the crate), is `None`: the caller decodes it
+//! with OpenCV as before, so what OpenCV refuses, and the error the user sees, do not change.
 use numpy::PyArrayDyn;
 use png::{BitDepth, ColorType, Decoder, Transformations};
 use pyo3::prelude::*;
@@ -57,7 +57,9 @@ fn decode(data: &[u8]) -> Option<(Vec<u8>, Vec<usize>)> {
 /// (another kind of image, or a file this decoder refuses: see the module doc).
 #[pyfunction]
 fn decode_png<'py>(py: Python<'py>, data: &[u8]) -> PyResult<Option<Bound<'py, PyArrayDyn<u8>>>> {
-    match py.detach(|| decode(data)) {
+    // A decoder panic on some file nobody foresaw is one more file to leave to OpenCV, never a crash.
+    let decoded = py.detach(|| std::panic::catch_unwind(|| decode(data)).ok().flatten());
+    match decoded {
         Some((pixels, shape)) => Ok(Some(to_numpy(py, pixels, &shape)?)),
         None => Ok(None),
     }

@@ -120,8 +120,8 @@ unsafe fn ratio_matches_avx2(
 /// The stored descriptors are laid out word by word (each 512-bit register holds one 64-bit word of eight
 /// descriptors), so a query's distances to eight of them are four XORs, four popcounts and three adds. Each
 /// of the eight lanes keeps the nearest and second nearest of its own share (every eighth descriptor), the
-/// nearest's index the first that reached it; the lanes are then merged, and the last `len % 8` descriptors
-/// are compared one by one. That is the same nearest distance, the same first index reaching it and the same
+/// nearest's index the first that reached it; the lanes are then merged. The last block's empty lanes (`len`
+/// not a multiple of 8) are held at a distance no descriptor has. That is the same nearest distance, the same first index reaching it and the same
 /// second nearest as one pass in order: the matches are identical to the portable loop's. 500 × 500
 /// descriptors take about a quarter of the one-by-one loop's time (`benches/views.rs`,
 /// `word_ratio_matches_500x500` against `…_one_by_one`).
@@ -142,11 +142,16 @@ unsafe fn ratio_matches_avx512(
         _mm512_setr_epi64, _mm512_storeu_si512, _mm512_xor_si512,
     };
     const LANES: usize = 8;
-    let blocks = stored.len() / LANES;
-    // Word `w` of the stored descriptors `8b .. 8b + 8` at `columns[4b + w]`.
+    let blocks = stored.len().div_ceil(LANES);
+    // Word `w` of the stored descriptors `8b .. 8b + 8` at `columns[4b + w]` (0 where a lane is empty), and
+    // each block's lanes that hold a descriptor.
     let mut columns: Vec<[u64; LANES]> = Vec::with_capacity(blocks * 4);
-    for block in stored.chunks_exact(LANES) {
-        columns.extend((0..4).map(|word| std::array::from_fn(|lane| block[lane][word])));
+    let mut filled: Vec<u8> = Vec::with_capacity(blocks);
+    for block in stored.chunks(LANES) {
+        columns.extend((0..4).map(|word| {
+            std::array::from_fn(|lane| block.get(lane).map_or(0, |descriptor| descriptor[word]))
+        }));
+        filled.push((0xFFu16 >> (LANES - block.len())) as u8);
     }
     let load = |column: &[u64; LANES]| -> __m512i {
         // SAFETY: `column` is 64 readable bytes; the load is unaligned.
@@ -160,66 +165,49 @@ unsafe fn ratio_matches_avx512(
     };
     let mut out = Vec::new();
     for (qi, q) in query.iter().enumerate() {
-        let (mut best, mut second, mut best_index) = (u32::MAX, u32::MAX, 0usize);
-        if blocks > 0 {
-            let words = q.map(|w| _mm512_set1_epi64(w as i64));
-            let far = _mm512_set1_epi64(i64::MAX);
-            let (mut lane_best, mut lane_second) = (far, far);
-            let mut lane_index = _mm512_setr_epi64(0, 1, 2, 3, 4, 5, 6, 7);
-            let mut index = lane_index;
-            let step = _mm512_set1_epi64(LANES as i64);
-            for block in columns.chunks_exact(4) {
-                let bits =
-                    |w: usize| _mm512_popcnt_epi64(_mm512_xor_si512(words[w], load(&block[w])));
-                let d = _mm512_add_epi64(
-                    _mm512_add_epi64(bits(0), bits(1)),
-                    _mm512_add_epi64(bits(2), bits(3)),
-                );
-                // As the loop in order: nearer than the nearest, the nearest becomes the second; else the
-                // second is the nearer of the two.
-                let nearer = _mm512_cmplt_epu64_mask(d, lane_best);
-                lane_second =
-                    _mm512_mask_mov_epi64(_mm512_min_epu64(lane_second, d), nearer, lane_best);
-                lane_best = _mm512_mask_mov_epi64(lane_best, nearer, d);
-                lane_index = _mm512_mask_mov_epi64(lane_index, nearer, index);
-                index = _mm512_add_epi64(index, step);
-            }
-            let (lane_best, lane_second, lane_index) =
-                (store(lane_best), store(lane_second), store(lane_index));
-            // The nearest: the smallest lane nearest, at the first index among the lanes that reach it.
-            let mut winner = 0usize;
-            for lane in 1..LANES {
-                let (d, i) = (lane_best[lane], lane_index[lane]);
-                if d < lane_best[winner] || (d == lane_best[winner] && i < lane_index[winner]) {
-                    winner = lane;
-                }
-            }
-            // The second nearest: every lane's second and every other lane's nearest.
-            let mut runner_up = u64::MAX;
-            for lane in 0..LANES {
-                runner_up = runner_up.min(lane_second[lane]);
-                if lane != winner {
-                    runner_up = runner_up.min(lane_best[lane]);
-                }
-            }
-            best = lane_best[winner] as u32; // at most 256: every lane holds at least one descriptor
-            second = runner_up.min(u64::from(u32::MAX)) as u32;
-            best_index = lane_index[winner] as usize;
+        let words = q.map(|w| _mm512_set1_epi64(w as i64));
+        let far = _mm512_set1_epi64(i64::MAX);
+        let (mut lane_best, mut lane_second) = (far, far);
+        let mut lane_index = _mm512_setr_epi64(0, 1, 2, 3, 4, 5, 6, 7);
+        let mut index = lane_index;
+        let step = _mm512_set1_epi64(LANES as i64);
+        for (block, &lanes) in columns.chunks_exact(4).zip(&filled) {
+            let bits = |w: usize| _mm512_popcnt_epi64(_mm512_xor_si512(words[w], load(&block[w])));
+            let d = _mm512_add_epi64(
+                _mm512_add_epi64(bits(0), bits(1)),
+                _mm512_add_epi64(bits(2), bits(3)),
+            );
+            let d = _mm512_mask_mov_epi64(far, lanes, d); // an empty lane is never nearer
+                                                          // As the loop in order: nearer than the nearest, the nearest becomes the second; else the
+                                                          // second is the nearer of the two.
+            let nearer = _mm512_cmplt_epu64_mask(d, lane_best);
+            lane_second =
+                _mm512_mask_mov_epi64(_mm512_min_epu64(lane_second, d), nearer, lane_best);
+            lane_best = _mm512_mask_mov_epi64(lane_best, nearer, d);
+            lane_index = _mm512_mask_mov_epi64(lane_index, nearer, index);
+            index = _mm512_add_epi64(index, step);
         }
-        // The last `len % 8` one by one, as `ratio_matches_portable` does.
-        for (si, s) in stored.iter().enumerate().skip(blocks * LANES) {
-            let d = (q[0] ^ s[0]).count_ones()
-                + (q[1] ^ s[1]).count_ones()
-                + (q[2] ^ s[2]).count_ones()
-                + (q[3] ^ s[3]).count_ones();
-            if d < best {
-                second = best;
-                best = d;
-                best_index = si;
-            } else if d < second {
-                second = d;
+        let (lane_best, lane_second, lane_index) =
+            (store(lane_best), store(lane_second), store(lane_index));
+        // The nearest: the smallest lane nearest, at the first index among the lanes that reach it.
+        let mut winner = 0usize;
+        for lane in 1..LANES {
+            let (d, i) = (lane_best[lane], lane_index[lane]);
+            if d < lane_best[winner] || (d == lane_best[winner] && i < lane_index[winner]) {
+                winner = lane;
             }
         }
+        // The second nearest: every lane's second and every other lane's nearest.
+        let mut runner_up = u64::MAX;
+        for lane in 0..LANES {
+            runner_up = runner_up.min(lane_second[lane]);
+            if lane != winner {
+                runner_up = runner_up.min(lane_best[lane]);
+            }
+        }
+        let best = lane_best[winner] as u32; // at most 256: the caller gives at least two descriptors
+        let second = runner_up.min(u64::from(u32::MAX)) as u32;
+        let best_index = lane_index[winner] as usize;
         if f64::from(best) < ratio * f64::from(second) {
             out.push((qi as u32, best_index as u32));
         }
@@ -231,9 +219,6 @@ unsafe fn ratio_matches_avx512(
 fn ratio_matches_portable(query: &[[u64; 4]], stored: &[[u64; 4]], ratio: f64) -> Vec<(u32, u32)> {
     let mut out = Vec::new();
     for (qi, q) in query.iter().enumerate() {
-        // The same scan as the eight-lane build's last descriptors, written out twice: shared as a function
-        // taking and returning the running state, this loop (every CPU without AVX-512 runs it) was 1.17×
-        // slower (`benches/views.rs`, `…_one_by_one`).
         let (mut best, mut second, mut best_index) = (u32::MAX, u32::MAX, 0usize);
         for (si, s) in stored.iter().enumerate() {
             let d = (q[0] ^ s[0]).count_ones()
@@ -320,7 +305,7 @@ mod tests {
             }
         }
         // The eight-lane build against the same reference, at every stored count around its blocks of eight
-        // (the remainder compared one by one, lanes left empty), where this CPU has it.
+        // (the last block part empty, or lanes empty in every block), where this CPU has it.
         #[cfg(target_arch = "x86_64")]
         if std::arch::is_x86_feature_detected!("avx512f")
             && std::arch::is_x86_feature_detected!("avx512vpopcntdq")
