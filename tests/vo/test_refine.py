@@ -1,7 +1,7 @@
 """The warped-window refinement of KLT matches (`VoParams.refine_matches`, Rust `hippo_vo::tracks`): on a
 rendered road, whose true correspondences the renderer gives exactly, KLT's square window is biased and the
 refinement is not; bad input is refused with a clear error. (The warp's own convergence is tested in
-crates/hippo_vo/src/tracks.rs; what it does to the odometry is measured by tests/benchmarks/vo.py.)"""
+crates/hippo_vo/src/tracks/; what it does to the odometry is measured by tests/benchmarks/vo.py.)"""
 
 from __future__ import annotations
 

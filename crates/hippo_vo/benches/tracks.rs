@@ -1,11 +1,12 @@
 //! Cost of refining KLT matches with a warped window (criterion; `make bench`): 1 000 matches on a
 //! KITTI-size textured image pair, 15 px windows as the VO uses there. The affine warp (temporal tracks)
-//! and the row shear (stereo) are timed in the same run; compare them as ratios (absolute times on a
+//! and the row shear (stereo) are timed in the same run, each also sampling one window pixel at a time
+//! (`…_one_by_one`, the baseline of the eight-lane sampling); compare them as ratios (absolute times on a
 //! shared machine are noise). Benches may unwrap.
 #![allow(clippy::unwrap_used)]
 use criterion::{criterion_group, criterion_main, BatchSize, Criterion};
 use hippo_attractor::{SpatialMemory, SpatialMemoryParams};
-use hippo_vo::{refine_matches, GrayImage, RefineParams, WarpModel};
+use hippo_vo::{refine_matches, GrayImage, RefineParams, Sampling, WarpModel};
 
 const WIDTH: usize = 1241;
 const HEIGHT: usize = 376;
@@ -75,6 +76,22 @@ fn refine(c: &mut Criterion) {
     group.bench_function("row_shear", |bench| {
         bench.iter(|| {
             refine_matches(&a, &r, &points, &stereo, WarpModel::RowShear, &params).unwrap()
+        })
+    });
+    // The same refinements sampling one window pixel at a time (CPUs without AVX2): the baseline of the
+    // eight-lane sampling, the same results bit for bit.
+    let one_by_one = RefineParams {
+        sampling: Sampling::OneByOne,
+        ..params
+    };
+    group.bench_function("affine_one_by_one", |bench| {
+        bench.iter(|| {
+            refine_matches(&a, &b, &points, &tracked, WarpModel::Affine, &one_by_one).unwrap()
+        })
+    });
+    group.bench_function("row_shear_one_by_one", |bench| {
+        bench.iter(|| {
+            refine_matches(&a, &r, &points, &stereo, WarpModel::RowShear, &one_by_one).unwrap()
         })
     });
     group.finish();

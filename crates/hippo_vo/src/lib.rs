@@ -23,5 +23,5 @@ pub mod window;
 pub use camera::StereoCamera;
 pub use disparity::{frame_offset, OffsetEstimate, OffsetTracks};
 pub use error::{Result, VoError};
-pub use tracks::{refine_matches, GrayImage, RefineParams, WarpModel};
+pub use tracks::{refine_matches, GrayImage, RefineParams, Sampling, WarpModel};
 pub use window::{KeyframeOutcome, Observation, SlidingWindow, WindowParams};

@@ -21,9 +21,15 @@
 //! does not shift the match). A refinement that fails (a window off the image, a singular system, a move
 //! of more than `max_shift_px` from KLT's answer, or a warp beyond `max_deformation`) returns `None`:
 //! the caller keeps KLT's match.
+//!
+//! Sampling the second image is the inner loop: on CPUs with AVX2 it takes eight window pixels at a time
+//! (`avx2.rs`) with the same arithmetic, so the results do not depend on the CPU.
 use crate::error::{Result, VoError};
 use nalgebra::{Cholesky, Matrix6, Vector6};
 use rayon::prelude::*;
+
+#[cfg(target_arch = "x86_64")]
+mod avx2;
 
 /// An 8-bit gray image, row-major.
 #[derive(Debug, Clone, Copy)]
@@ -82,22 +88,36 @@ impl<'a> GrayImage<'a> {
         Some(())
     }
 
-    /// Bilinear intensity at (x, y), which the caller has checked to lie in [0, width − 1) × [0, height − 1).
-    // Always inlined: called once per window pixel and iteration, it was the refinement's largest cost as
-    // a function call (15 % of the VO's time on KITTI 06 in perf).
     /// The rows around y ([0, height − 1), checked by the caller) for [`RowPair::sample`].
+    // The refinement goes through `row_of` and `pair_at`; a test checks that a pair samples as
+    // `sample_inside` does.
+    #[cfg(test)]
     fn row_pair(&self, y: f32) -> RowPair<'_> {
-        let y0 = y as i32;
-        let fy = y - y0 as f32;
-        let r = (y0.max(0) as usize).min(self.height - 2);
+        self.pair_at(self.row_of(y))
+    }
+
+    /// The row pair that begins at byte `start` (`row_of`'s), with weight `fy`.
+    fn pair_at(&self, (start, fy): (usize, f32)) -> RowPair<'_> {
         let w = self.width;
         RowPair {
-            top: &self.data[r * w..(r + 1) * w],
-            bottom: &self.data[(r + 1) * w..(r + 2) * w],
+            top: &self.data[start..start + w],
+            bottom: &self.data[start + w..start + 2 * w],
             fy,
         }
     }
 
+    /// (r · width, fy): where the row pair around y begins (its top row r ≤ height − 2) and the weight of
+    /// its bottom row.
+    fn row_of(&self, y: f32) -> (usize, f32) {
+        let y0 = y as i32;
+        let fy = y - y0 as f32;
+        let r = (y0.max(0) as usize).min(self.height - 2);
+        (r * self.width, fy)
+    }
+
+    /// Bilinear intensity at (x, y), which the caller has checked to lie in [0, width − 1) × [0, height − 1).
+    // Always inlined: called once per window pixel and iteration, it was the refinement's largest cost as
+    // a function call (15 % of the VO's time on KITTI 06 in perf).
     #[inline(always)]
     fn sample_inside(&self, x: f32, y: f32) -> f32 {
         // Through i32, not usize: the same whole part (x, y ≥ 0 and far below 2²⁴), with cheaper
@@ -160,6 +180,19 @@ pub struct RefineParams {
     pub max_shift_px: f64,
     /// A warp whose linear part differs from the identity by more than this (any entry) is rejected.
     pub max_deformation: f64,
+    /// How the second image's window is sampled; the results are the same bit for bit either way.
+    pub sampling: Sampling,
+}
+
+/// How [`refine_matches`] samples the second image's window (module doc, last paragraph).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum Sampling {
+    /// Eight pixels at a time on CPUs with AVX2, else one at a time.
+    #[default]
+    Fastest,
+    /// One pixel at a time everywhere: the baseline `benches/tracks.rs` measures the eight-lane sampling
+    /// against, and what the tests compare it with.
+    OneByOne,
 }
 
 impl Default for RefineParams {
@@ -170,6 +203,7 @@ impl Default for RefineParams {
             converged_px: 0.01,
             max_shift_px: 1.0,
             max_deformation: 0.5,
+            sampling: Sampling::Fastest,
         }
     }
 }
@@ -219,6 +253,10 @@ pub fn refine_matches(
             why: "must hold one match per point".to_string(),
         });
     }
+    #[cfg(target_arch = "x86_64")]
+    let lanes = params.sampling == Sampling::Fastest && avx2::usable(b);
+    #[cfg(not(target_arch = "x86_64"))]
+    let lanes = false;
     // Matches are independent, so the result does not depend on the number of threads. Two threads halve
     // the VO's own time (criterion); in the whole pipeline the other stages already fill both cores and the
     // frame rate was the same either way (docs/vo.md).
@@ -227,7 +265,7 @@ pub fn refine_matches(
         .zip(matched_b.par_iter())
         .with_min_len(64)
         .map_init(
-            || Window::new(params.half_window_px, model),
+            || Window::new(params.half_window_px, model, lanes),
             |window, (p, m)| window.refine(a, b, *p, *m, params),
         )
         .collect())
@@ -236,8 +274,12 @@ pub fn refine_matches(
 /// Scratch space for one window, reused from match to match.
 struct Window {
     model: WarpModel,
-    side: usize,            // window side, px
+    lanes: bool, // sample eight pixels at a time (`avx2`; the caller checked the CPU)
+    side: usize, // window side, px
     offsets: Vec<[f32; 2]>, // (du, dv) of each window pixel, row-major
+    du: Vec<f32>, // the offsets' du, for the eight-lane sampling
+    dv: Vec<f32>, // and their dv
+    rows: Vec<(usize, f32)>, // each window row's row pair (`GrayImage::row_of`), row-shear sampling
     patch: Vec<f32>, // the first image around the point, (side + 2)² (the window and a border)
     template: Vec<f32>, // the first image's window, mean removed
     descent: Vec<[f32; 6]>, // steepest-descent images (gradient · ∂warp/∂p), per pixel
@@ -245,7 +287,7 @@ struct Window {
 }
 
 impl Window {
-    fn new(half: usize, model: WarpModel) -> Self {
+    fn new(half: usize, model: WarpModel, lanes: bool) -> Self {
         let h = half as i32;
         let offsets: Vec<[f32; 2]> = (-h..=h)
             .flat_map(|dv| (-h..=h).map(move |du| [du as f32, dv as f32]))
@@ -254,7 +296,11 @@ impl Window {
         let side = 2 * half + 1;
         Self {
             model,
+            lanes,
             side,
+            du: offsets.iter().map(|o| o[0]).collect(),
+            dv: offsets.iter().map(|o| o[1]).collect(),
+            rows: Vec::with_capacity(side),
             offsets,
             patch: vec![0.0; (side + 2) * (side + 2)],
             template: vec![0.0; n],
@@ -264,6 +310,7 @@ impl Window {
     }
 
     /// One match refined, or None (module doc).
+    #[allow(unsafe_code)] // the AVX2 build, on a CPU that `refine_matches` checked has AVX2
     fn refine(
         &mut self,
         a: &GrayImage<'_>,
@@ -274,13 +321,105 @@ impl Window {
     ) -> Option<[f64; 2]> {
         // The row-shear warp's steepest-descent images are zero beyond its three parameters: the sums
         // skip them (the same numbers, less work: docs/vo.md, "Speed").
+        #[cfg(target_arch = "x86_64")]
+        if self.lanes {
+            // SAFETY: AVX2 checked by `refine_matches` (`lanes`).
+            return unsafe { self.refine_avx2(a, b, point_a, start_b, params) };
+        }
+        self.refine_model(a, b, point_a, start_b, params)
+    }
+
+    #[inline(always)] // into `refine_avx2` too, so that it is compiled for AVX2 there
+    fn refine_model(
+        &mut self,
+        a: &GrayImage<'_>,
+        b: &GrayImage<'_>,
+        point_a: [f64; 2],
+        start_b: [f64; 2],
+        params: &RefineParams,
+    ) -> Option<[f64; 2]> {
         match self.model {
             WarpModel::Affine => self.refine_with::<6>(a, b, point_a, start_b, params),
             WarpModel::RowShear => self.refine_with::<3>(a, b, point_a, start_b, params),
         }
     }
 
+    /// [`Window::refine`] compiled for AVX2 (the template's sums in wider registers: 0.94× the affine
+    /// refinement's time, `benches/tracks.rs`). Not FMA: a fused multiply–add rounds once where the plain
+    /// build rounds twice, and the results must not depend on the CPU.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    #[allow(unsafe_code)]
+    unsafe fn refine_avx2(
+        &mut self,
+        a: &GrayImage<'_>,
+        b: &GrayImage<'_>,
+        point_a: [f64; 2],
+        start_b: [f64; 2],
+        params: &RefineParams,
+    ) -> Option<[f64; 2]> {
+        self.refine_model(a, b, point_a, start_b, params)
+    }
+
+    /// The second image under the warp (centre `c`, linear part `l`) at every window pixel, into `warped`.
+    /// The warped window lies inside the image (the caller checked its corners).
+    #[allow(unsafe_code)] // the eight-lane build, on a CPU that `refine_matches` checked has AVX2
+    fn sample(&mut self, b: &GrayImage<'_>, c: [f32; 2], l: [f32; 4]) {
+        let [cx, cy] = c;
+        if self.model == WarpModel::RowShear {
+            // The row-shear warp keeps rows (its l[2] is ±0 and l[3] exactly 1 by construction), so each
+            // window row samples one image row pair: its row and weight once per row (the same numbers).
+            self.rows.clear();
+            for offsets in self.offsets.chunks_exact(self.side) {
+                let [du0, dv] = offsets[0];
+                self.rows.push(b.row_of(cy + l[2] * du0 + l[3] * dv));
+            }
+            #[cfg(target_arch = "x86_64")]
+            if self.lanes {
+                // SAFETY: AVX2 was checked by `refine_matches`; du, dv and warped hold `side` samples a
+                // row, and every row start comes from `row_of` (r ≤ height − 2).
+                unsafe {
+                    avx2::sample_rows(
+                        b,
+                        [cx, l[0], l[1]],
+                        &self.rows,
+                        self.side,
+                        &self.du,
+                        &self.dv,
+                        &mut self.warped,
+                    )
+                };
+                return;
+            }
+            for ((samples, offsets), row) in self
+                .warped
+                .chunks_exact_mut(self.side)
+                .zip(self.offsets.chunks_exact(self.side))
+                .zip(self.rows.iter().copied())
+            {
+                let line = b.pair_at(row);
+                for (w, &[du, dv]) in samples.iter_mut().zip(offsets) {
+                    *w = line.sample(cx + l[0] * du + l[1] * dv);
+                }
+            }
+            return;
+        }
+        #[cfg(target_arch = "x86_64")]
+        if self.lanes {
+            // SAFETY: AVX2 was checked by `refine_matches`; du, dv and warped have one entry a pixel.
+            unsafe { avx2::sample_affine(b, c, l, &self.du, &self.dv, &mut self.warped) };
+            return;
+        }
+        for (w, &[du, dv]) in self.warped.iter_mut().zip(&self.offsets) {
+            *w = b.sample_inside(cx + l[0] * du + l[1] * dv, cy + l[2] * du + l[3] * dv);
+        }
+    }
+
     /// [`Window::refine`] for a warp of `K` parameters (the steepest-descent entries from `K` on are 0).
+    #[inline(always)] // into `refine_avx2` too, so that it is compiled for AVX2 there
     fn refine_with<const K: usize>(
         &mut self,
         a: &GrayImage<'_>,
@@ -362,29 +501,9 @@ impl Window {
             if !inside {
                 return None;
             }
-            let mut sum = 0.0f32;
-            if self.model == WarpModel::RowShear {
-                // The row-shear warp keeps rows (its l[2] is ±0 and l[3] exactly 1 by construction), so each
-                // window row samples one image row pair: its row and weight once per row (the same numbers).
-                for (row, offsets) in self
-                    .warped
-                    .chunks_exact_mut(self.side)
-                    .zip(self.offsets.chunks_exact(self.side))
-                {
-                    let [du0, dv] = offsets[0];
-                    let y = cy + l[2] * du0 + l[3] * dv;
-                    let line = b.row_pair(y);
-                    for (w, &[du, dv]) in row.iter_mut().zip(offsets) {
-                        *w = line.sample(cx + l[0] * du + l[1] * dv);
-                        sum += *w;
-                    }
-                }
-            } else {
-                for (w, &[du, dv]) in self.warped.iter_mut().zip(&self.offsets) {
-                    *w = b.sample_inside(cx + l[0] * du + l[1] * dv, cy + l[2] * du + l[3] * dv);
-                    sum += *w;
-                }
-            }
+            self.sample(b, [cx, cy], l);
+            // In pixel order, as one loop summing while it sampled did (the same mean bit for bit).
+            let sum = self.warped.iter().fold(0.0f32, |sum, &w| sum + w);
             let mean = sum / count;
             let mut gradient = [0.0f32; 6];
             for ((w, t), sd) in self.warped.iter().zip(&self.template).zip(&self.descent) {
@@ -602,6 +721,67 @@ mod tests {
         assert_eq!(
             image.sample_inside(x, y).to_bits(),
             image.row_pair(y).sample(x).to_bits()
+        );
+    }
+
+    #[test]
+    fn eight_lane_sampling_refines_every_match_as_one_pixel_at_a_time() {
+        // Both builds over many matches, windows of several sides, both warps, starts up to a pixel off, at
+        // the image's edges too (where a window leaves it): the same refined positions bit for bit, and the
+        // same failures. On a CPU without AVX2 both run the one-pixel loop.
+        let (w, h) = (97, 61);
+        let first = render(w, h, |u, v| (u, v));
+        let second = render(w, h, |u, v| (3.0 + u / 1.05 + 0.02 * v, -1.0 + v / 1.04));
+        let (a, b) = (
+            GrayImage::new(&first, w, h).unwrap(),
+            GrayImage::new(&second, w, h).unwrap(),
+        );
+        let points: Vec<[f64; 2]> = (0..600)
+            .map(|k| {
+                let k = k as f64;
+                [
+                    (k * 0.618_034).fract() * (w - 1) as f64,
+                    (k * 0.414_214).fract() * (h - 1) as f64,
+                ]
+            })
+            .collect();
+        let starts: Vec<[f64; 2]> = points
+            .iter()
+            .enumerate()
+            .map(|(k, p)| {
+                let off = (
+                    (k as f64 * 0.7548).fract() - 0.5,
+                    (k as f64 * 0.5698).fract() - 0.5,
+                );
+                [
+                    (p[0] - 3.0) * 1.05 - 0.02 * p[1] + off.0,
+                    (p[1] + 1.0) * 1.04 + off.1,
+                ]
+            })
+            .collect();
+        let mut refined = 0;
+        for half in [3, 6, 7, 9] {
+            let params = RefineParams {
+                half_window_px: half,
+                ..RefineParams::default()
+            };
+            for model in [WarpModel::Affine, WarpModel::RowShear] {
+                let lanes = refine_matches(&a, &b, &points, &starts, model, &params).unwrap();
+                let one_by_one = RefineParams {
+                    sampling: Sampling::OneByOne,
+                    ..params
+                };
+                let one = refine_matches(&a, &b, &points, &starts, model, &one_by_one).unwrap();
+                let bits = |m: &Option<[f64; 2]>| m.map(|m| m.map(f64::to_bits));
+                for (k, (x, y)) in lanes.iter().zip(&one).enumerate() {
+                    assert_eq!(bits(x), bits(y), "match {k}, half {half}, {model:?}");
+                }
+                refined += lanes.iter().flatten().count();
+            }
+        }
+        assert!(
+            refined > 1000,
+            "the comparison must cover refined matches: {refined}"
         );
     }
 }
