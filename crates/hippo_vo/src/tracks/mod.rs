@@ -272,6 +272,8 @@ pub fn refine_matches(
 }
 
 /// Scratch space for one window, reused from match to match.
+// `lanes`, `du` and `dv` serve the eight-lane sampling, which only x86-64 builds have.
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
 struct Window {
     model: WarpModel,
     lanes: bool, // sample eight pixels at a time (`avx2`; the caller checked the CPU)
