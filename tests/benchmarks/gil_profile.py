@@ -73,7 +73,11 @@ def main() -> None:
             ]
             command += ["-o", str(raw), "--", str(bin_dir / "hippo-nav"), "run", "--dataset", args.kitti]
             command += ["--sequence", args.sequence, "--stop", str(args.stop), "--out", str(out)]
-            subprocess.run(command + ["--no-figures", "--no-progress"], check=True, capture_output=True)
+            run = command + ["--no-figures", "--no-progress"]
+            done = subprocess.run(run, check=False, capture_output=True, text=True)
+            if done.returncode != 0 or not (out / "metrics.json").is_file():
+                # py-spy refused (no ptrace here) or the run failed (py-spy exits 0 then): say which.
+                sys.exit(f"gil_profile: the profiled run failed:\n{done.stderr.strip()[-2000:]}")
             metrics = json.loads((out / "metrics.json").read_text())
             threads, holders = gil_samples(raw)
         n, fps = metrics["frames"], metrics["timing"]["frames_per_s"]
