@@ -108,6 +108,40 @@ def test_a_closure_proposer_plugs_in_and_the_map_only_closes_what_is_proposed(de
     # The store keeps every vertex's keyframe whoever proposes (a later proposer may measure it).
     assert result.metrics["keyframes"] == result.metrics["vertices"]
     assert result.metrics["familiar_view_frames"] > 0  # there were revisits to close
+    # No proposer asked for this frame's keyframe: every one was made for a vertex, on the slow-work thread.
+    assert result.metrics["keyframe_extractions"] == {
+        "by_proposers": 0,
+        "kept_by_a_vertex": 0,
+        "for_new_vertices": result.metrics["vertices"],
+    }
+
+
+class MeasuringProposer(SilentProposer):
+    """Asks for this frame's keyframe on every frame (as a proposer about to measure), proposes nothing."""
+
+    def propose(self, context: ClosureContext) -> ClosureAttempt:
+        self.frames += 1
+        keyframe, _ = context.keyframes.current()
+        assert keyframe is not None and context.keyframes.current()[0] is keyframe  # once a frame
+        return ClosureAttempt()
+
+
+def test_the_keyframes_a_proposer_extracts_are_counted_and_a_new_vertex_keeps_its_frames(demo, monkeypatch):
+    monkeypatch.setitem(
+        parts.CLOSURE_PROPOSERS, "measuring", Part(MeasuringProposer, ConfigSection, "measuring")
+    )
+    config = config_from_dict({**QUIET, "parts": {"closure": ["measuring"]}})
+    result = Pipeline(Frames(demo, 60), config).run(None)
+    vertices = result.metrics["vertices"]
+    assert 1 < vertices < 60
+    # Extracted on every frame for the proposer; a frame that made a vertex gave it that keyframe, so none was
+    # extracted again for a vertex, and the rest (frames without a new vertex) were the proposer's own cost.
+    assert result.metrics["keyframe_extractions"] == {
+        "by_proposers": 60,
+        "kept_by_a_vertex": vertices,
+        "for_new_vertices": 0,
+    }
+    assert result.metrics["keyframes"] == vertices
 
 
 def test_an_unknown_part_is_refused_naming_the_choices():

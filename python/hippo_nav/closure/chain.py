@@ -107,6 +107,11 @@ class ClosureChain:
     def stored_bytes(self) -> int:
         return self.store.stored_bytes
 
+    @property
+    def extractions(self) -> dict[str, int]:
+        """The keyframes extracted this run, by whom (`KeyframeStore.extractions`)."""
+        return self.store.extractions
+
     # -- Persistent -----------------------------------------------------------------------------------
     def depends_on(self) -> dict[str, object]:
         """What the saved keyframes depend on (the proposers keep no settings a memory depends on)."""

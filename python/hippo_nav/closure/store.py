@@ -76,6 +76,10 @@ class KeyframeStore:
         self.measured: set[int] = set()  # vertices measured from this frame
         # Where the last kept keyframe was made (`keyframe_spacing_m`).
         self._last_keyframe_odometer_m = -np.inf
+        # Keyframes extracted this run (`extractions`): where a closure's CPU goes.
+        self._extracted_by_proposers = 0
+        self._kept_from_proposers = 0
+        self._extracted_for_vertices = 0
 
     # -- this frame -----------------------------------------------------------------------------------
     def begin_frame(self, frame: StereoFrame, disparity_offset_px: float | None) -> None:
@@ -91,6 +95,7 @@ class KeyframeStore:
         if self._current_why or self._frame is None:
             return None, self._current_why or "no_current_keyframe"
         frame = self._frame
+        self._extracted_by_proposers += 1
         try:
             self._current = self.extract(frame.left, frame.right, self._offset_px)
         except Exception as err:  # noqa: BLE001 - a frame without a keyframe closes no loop; the run goes on
@@ -203,12 +208,14 @@ class KeyframeStore:
         vertex = int(outcome.vertex)
         if self._current is not None:
             self.keyframes[vertex] = self._current
+            self._kept_from_proposers += 1
             self._last_keyframe_odometer_m = odometer_m
             return
         # (An odometer behind the last keyframe's is a new session's, started at 0 over a loaded memory.)
         if 0.0 <= odometer_m - self._last_keyframe_odometer_m < self.config.keyframe_spacing_m:
             return
         self._last_keyframe_odometer_m = odometer_m
+        self._extracted_for_vertices += 1
         self._pending[vertex] = worker.submit(self.extract, frame.left, frame.right, self._offset_px)
         if self._pending[vertex].done():  # done at once (inline): take it (or report its failure) now
             self.keyframe(vertex)
@@ -240,6 +247,17 @@ class KeyframeStore:
 
     def __len__(self) -> int:
         return len(self.keyframes)
+
+    @property
+    def extractions(self) -> dict[str, int]:
+        """Keyframes extracted this run: `by_proposers` for this frame's measurements (on the closure's thread,
+        in the frame's time), `kept_by_a_vertex` of those, and `for_new_vertices` on the slow-work thread. A
+        proposer's extractions that no vertex kept are its own cost (docs/results.md, "Lost loops")."""
+        return {
+            "by_proposers": self._extracted_by_proposers,
+            "kept_by_a_vertex": self._kept_from_proposers,
+            "for_new_vertices": self._extracted_for_vertices,
+        }
 
     @property
     def stored_bytes(self) -> int:

@@ -453,6 +453,8 @@ class RunFacts:
     stereo_fault: str | None = None  # the odometry's verdict on the stereo pair ("swapped", "unrectified", …)
     loaded_truth: LoadedTruth | None = None  # the loaded map's truth (`pipeline.truth`), when comparable
     loaded_truth_note: str | None = None  # why a loaded map's closures go unscored
+    # Keyframes extracted this run, by whom (`KeyframeStore.extractions`); None without a closure chain.
+    keyframe_extractions: dict[str, int] | None = None
 
 
 def evaluate(
@@ -495,6 +497,7 @@ def evaluate(
         "links": len(export["links"]),
         "keyframes": facts.keyframes,
         "keyframe_bytes": facts.keyframe_bytes,
+        "keyframe_extractions": facts.keyframe_extractions,
         "loop_closures": int(sum(c is not None for c in closures)),
         "loop_closure_frames": [
             record.frames[p].frame_index for p, c in enumerate(closures) if c is not None

@@ -267,6 +267,7 @@ class Pipeline:
             view_cells=len(self.system.view_recall),
             keyframes=0 if closure is None else closure.stored,
             keyframe_bytes=0 if closure is None else closure.stored_bytes,
+            keyframe_extractions=None if closure is None else dict(closure.extractions),
             data_warnings=self.extras.warnings + odometry.warnings,
             stereo_bias_px=odometry.stereo_bias_px,
             disparity_offset_px=odometry.disparity_offset_px,
