@@ -280,20 +280,34 @@ class _RightShifted(Frames):
 
 def test_a_later_session_starts_from_the_stereo_offset_the_first_found(demo, tmp_path):
     """A run on a rig whose right image is a pixel off finds the offset from the motion and saves it with
-    its memory; a session started in that memory starts its VO there, unless its config sets the offset."""
+    its memory, and the estimates behind it; a session started in that memory starts its VO there, with
+    those estimates as its prior evidence (its first frames do not overturn the offset), unless its config
+    sets the offset."""
     from hippo_nav.pipeline import Pipeline
 
-    first = Pipeline(_RightShifted(demo, 90), config_from_dict(QUIET)).run(tmp_path / "first")
+    pipeline = Pipeline(_RightShifted(demo, 90), config_from_dict(QUIET))
+    first = pipeline.run(tmp_path / "first")
     found_px = first.metrics["data"]["disparity_offset_px"]
     assert found_px > 0.3  # it moved (the demo's 1 px reads about 0.6 after the first 10 frames)
     memory = read_memory(tmp_path / "first")
     assert memory.info["odometry"]["disparity_offset_px"] == found_px
+    behind = memory.info["odometry"]["disparity_offset_frames"]
+    assert behind == pipeline.odometry.disparity_offset_frames > 0  # type: ignore[attr-defined]
 
     later = Pipeline(_RightShifted(demo, 5), config_from_dict(QUIET), memory=memory)
     assert later.odometry.disparity_offset_px == found_px  # type: ignore[attr-defined]
+    assert later.odometry.params.disparity_calibration_prior_frames == behind  # type: ignore[attr-defined]
+    assert later.odometry.disparity_offset_frames == behind  # type: ignore[attr-defined]
     config = json.loads(json.dumps(QUIET))
     config.setdefault("vo", {})["disparity_offset_px"] = 0.25
     told = Pipeline(_RightShifted(demo, 5), config_from_dict(config), memory=memory)
     assert told.odometry.disparity_offset_px == 0.25  # type: ignore[attr-defined]
+    assert told.odometry.disparity_offset_frames == 0  # type: ignore[attr-defined]
     fresh = Pipeline(_RightShifted(demo, 5), config_from_dict(QUIET))
     assert fresh.odometry.disparity_offset_px == 0.0  # type: ignore[attr-defined]
+    assert fresh.odometry.disparity_offset_frames == 0  # type: ignore[attr-defined]
+    # A memory written before the estimates were kept starts from the offset with no prior evidence.
+    del memory.info["odometry"]["disparity_offset_frames"]
+    older = Pipeline(_RightShifted(demo, 5), config_from_dict(QUIET), memory=memory)
+    assert older.odometry.disparity_offset_px == found_px  # type: ignore[attr-defined]
+    assert older.odometry.disparity_offset_frames == 0  # type: ignore[attr-defined]

@@ -130,7 +130,7 @@ MANIFEST_PATHS = [
     ("version",), ("files",), ("files", "map.bin"), ("files", "views.npz", "bytes"),
     ("files", "state.npz", "sha256"), ("depends_on",), ("depends_on", "camera"),
     ("depends_on", "camera", "image_size_px"), ("depends_on", "engine"), ("counts",), ("counts", "vertices"),
-    ("config",), ("odometry",), ("odometry", "disparity_offset_px"),
+    ("config",), ("odometry",), ("odometry", "disparity_offset_px"), ("odometry", "disparity_offset_frames"),
 ]  # fmt: skip
 
 

@@ -145,6 +145,38 @@ def test_the_offset_in_use_moves_only_on_evidence():
     assert broken.offset_px == 5.0  # held at the range `vo.disparity_offset_px` allows
 
 
+def test_an_offset_earlier_drives_settled_is_judged_on_a_full_pool():
+    """With the estimates of earlier drives behind it (a session in a saved memory), the offset is first
+    judged after a full pool of this drive's, not after ten: a first street that reads -0.2 px does not move
+    it (without the prior it moves at the tenth frame), a rig that really changed still moves it at the
+    window's end, and the moved offset has no prior left (the next look is after `min_frames` again)."""
+    street = [
+        -0.2 + 0.02 * np.sin(k) for k in range(40)
+    ]  # one street's biased reading, then a consistent rig
+    rest = [0.01 * np.cos(k) for k in range(400)]
+    cold = DisparityCalibration(0.0, window=200, min_frames=10, deadband_px=0.1, max_sigma_px=0.1)
+    moved_at = [k for k, e in enumerate(street + rest) if cold.add(e, 0.03)]
+    assert moved_at[0] == 9 and cold.offset_px != 0.0
+
+    settled = DisparityCalibration(
+        0.0, window=200, min_frames=10, deadband_px=0.1, max_sigma_px=0.1, prior_frames=660
+    )
+    assert settled.evidence_frames == 660
+    assert not any(settled.add(e, 0.03) for e in street + rest)
+    assert settled.offset_px == 0.0 and settled.evidence_frames == 660 + len(street) + len(rest)
+
+    changed = DisparityCalibration(
+        0.0, window=200, min_frames=10, deadband_px=0.1, max_sigma_px=0.1, prior_frames=660
+    )
+    moves = [k for k in range(400) if changed.add(0.5 - changed.offset_px + 0.02 * np.sin(k), 0.03)]
+    assert moves[0] == 199 and changed.offset_px == pytest.approx(0.5, abs=0.03)
+    assert changed.evidence_frames == 400 - 1 - moves[-1]  # this drive's estimates since the move only
+    small = DisparityCalibration(
+        0.0, window=200, min_frames=10, deadband_px=0.1, max_sigma_px=0.1, prior_frames=30
+    )
+    assert next(k for k in range(60) if small.add(0.5, 0.03)) == 29  # a short prior waits as long as it is
+
+
 def _right_shifted(frame: StereoFrame, shift_px: float) -> StereoFrame:
     h, w = frame.right.shape
     moved = cv2.warpAffine(

@@ -10,7 +10,7 @@
 | `state.npz` | where the run stopped: the networks' full state, the active view cell, the last odometry pose — what a session continuing with the next frames needs (`SlamSystem(..., memory=..., resume=True)`) |
 | `path.npz` | every frame of every session: its vertex and offset from it (and session, frame index, time), so a later session places the earlier sessions' frames again on the map it corrected (`hippo_nav.pipeline.sessions`); absent from memories written before it existed |
 | `truth.npz` | only when the run had a ground truth: where each vertex was made and every frame's position, in the dataset's own ground-truth frame, so a later session on the same sequence scores its closures onto this map against the truth; never read by the system |
-| `memory.json` | format and version, the config that made the memory, the camera, the VO's disparity offset as the run ended, and every file's size and SHA-256 |
+| `memory.json` | format and version, the config that made the memory, the camera, the VO's disparity offset as the run ended and the estimates behind it, and every file's size and SHA-256 |
 
 The manifest is written last, so a folder with a manifest is complete; loading checks the manifest, then every
 file's size and checksum, before anything is built, so a truncated or corrupted folder is one error naming the

@@ -7,7 +7,8 @@ identity on the first frame) and `status` ("ok" when the step was measured and t
 first frame; anything else is flagged). Optional, read by `OdometryExtras.of`: `tracked_pixels` (the
 left-image features it tracks, drawn by viewers), `warnings`, `stereo_bias_px` and `stereo_fault` (reported
 in `metrics.json`), `disparity_offset_px` (the stereo correction in use after each frame: the closure's
-keyframes apply it too), `params` (a pydantic model written into `config.json`).
+keyframes apply it too), `disparity_offset_frames` (the estimates behind that correction, which a saved memory
+keeps with it), `params` (a pydantic model written into `config.json`).
 
 `OdometryGuard` is the odometry's failure policy: an exception or a non-finite step reuses the previous
 step (constant-velocity prior) and flags the frame "failed".
@@ -91,17 +92,20 @@ class OdometryExtras:
     stereo_fault: str | None = (
         None  # what is wrong with the stereo pair ("swapped", "unrectified", …), if known
     )
+    disparity_offset_frames: int | None = None  # estimates behind `disparity_offset_px`, if it has any
 
     @classmethod
     def of(cls, odometry: object) -> OdometryExtras:
         bias = getattr(odometry, "stereo_bias_px", None)
         bias_px = None if bias is None or not np.isfinite(bias) else float(bias)
         fault = getattr(odometry, "stereo_fault", None)
+        frames = getattr(odometry, "disparity_offset_frames", None)
         return cls(
             list(getattr(odometry, "warnings", [])),
             bias_px,
             disparity_offset_px(odometry),
             None if fault is None else str(fault),
+            frames if isinstance(frames, int) and frames >= 0 else None,
         )
 
 

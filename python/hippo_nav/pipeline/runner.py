@@ -375,11 +375,13 @@ class Pipeline:
             log.warning("no memory/ written: %s", err)
             result.metrics.setdefault("unavailable", {})["memory"] = str(err)
             return None
-        offset_px = OdometryExtras.of(self.odometry).disparity_offset_px
-        if offset_px is not None:
-            # The rig's stereo correction as this run ended (found by the VO's self-calibration): a later
-            # session with the same cameras starts from it (`_with_saved_rig`).
-            memory.info["odometry"] = {"disparity_offset_px": offset_px}
+        extras = OdometryExtras.of(self.odometry)
+        if extras.disparity_offset_px is not None:
+            # The rig's stereo correction as this run ended (found by the VO's self-calibration) and the
+            # estimates behind it: a later session with the same cameras starts from it (`_with_saved_rig`).
+            memory.info["odometry"] = {"disparity_offset_px": extras.disparity_offset_px}
+            if extras.disparity_offset_frames is not None:
+                memory.info["odometry"]["disparity_offset_frames"] = extras.disparity_offset_frames
         truth = truth_to_save(
             self.memory, self.dataset_name, self._ground_truth(), self.record, len(self.system.map)
         )
@@ -511,16 +513,30 @@ def open_input(
 
 def _with_saved_rig(config: PipelineConfig, memory: SavedMemory | None) -> PipelineConfig:
     """The config whose VO starts from the disparity offset a saved memory's run ended with (the same rig,
-    calibrated by that run's self-calibration), unless this run sets `vo.disparity_offset_px` itself."""
-    saved = None if memory is None else (memory.info.get("odometry") or {}).get("disparity_offset_px")
+    calibrated by that run's self-calibration), and with the estimates behind it as its prior evidence
+    (`vo.disparity_calibration_prior_frames`: the session's first streets do not overturn it), unless this
+    run sets `vo.disparity_offset_px` itself."""
+    odometry = {} if memory is None else (memory.info.get("odometry") or {})
+    saved = odometry.get("disparity_offset_px")
     vo = config.typed_section("vo", VoParams)
     if saved is None or "disparity_offset_px" in vo.model_fields_set:
         return config
     if not (isinstance(saved, (int, float)) and np.isfinite(saved) and abs(saved) <= DISPARITY_LIMIT_PX):
         log.warning("the saved memory's disparity offset %r is not usable; starting from the config's", saved)
         return config
-    log.info("the stereo VO starts from the saved run's disparity offset, %+.2f px", saved)
-    vo = vo.model_copy(update={"disparity_offset_px": float(saved)})
+    update: dict[str, float | int] = {"disparity_offset_px": float(saved)}
+    frames = odometry.get("disparity_offset_frames")
+    # A memory written before the estimates were kept, or whose count is unusable, gives no prior evidence.
+    if not (isinstance(frames, int) and not isinstance(frames, bool) and 0 <= frames <= 10**9):
+        frames = None
+    elif "disparity_calibration_prior_frames" not in vo.model_fields_set:
+        update["disparity_calibration_prior_frames"] = frames
+    log.info(
+        "the stereo VO starts from the saved run's disparity offset, %+.2f px (%s estimates behind it)",
+        saved,
+        "no" if frames is None else frames,
+    )
+    vo = vo.model_copy(update=update)
     return config.model_copy(update={"vo": vo})
 
 

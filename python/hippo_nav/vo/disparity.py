@@ -99,17 +99,31 @@ class DisparityCalibration:
     again (estimates made against the old offset no longer apply). A frame's fit reads almost all of a large
     offset (on KITTI 01 +1.0 of about +1.05 px), so a large one is reached in one or two moves; ten frames of a
     real street can read ±0.5 px apart, so the offset in use also wanders by that much over a short drive
-    (docs/vo.md)."""
+    (docs/vo.md).
+
+    `prior_frames`: estimates that earlier drives of this rig pooled for `initial_px` (a session started in a
+    saved memory). The first look then waits for min(`window`, `prior_frames`) of this drive's own estimates
+    instead of `min_frames`: ten frames of one street must not overturn an offset a whole drive settled (on
+    the 00 render, sessions started at frames 3490 and 3500 moved it by −0.07 and −0.03 px on their first
+    streets, and their odometry ran about 1 % long: docs/memory.md)."""
 
     def __init__(
-        self, initial_px: float, window: int, min_frames: int, deadband_px: float, max_sigma_px: float
+        self,
+        initial_px: float,
+        window: int,
+        min_frames: int,
+        deadband_px: float,
+        max_sigma_px: float,
+        prior_frames: int = 0,
     ) -> None:
         self.offset_px = float(initial_px)
         self.min_frames = int(min_frames)
         self.deadband_px = float(deadband_px)
         self.max_sigma_px = float(max_sigma_px)
         self._estimates_px: deque[float] = deque(maxlen=int(window))
-        self._pooled, self._next_look = 0, self.min_frames  # frames since the last change; when to judge
+        # Frames since the last change; when to judge next; the earlier drives' estimates behind the offset.
+        self._prior = max(0, int(prior_frames))
+        self._pooled, self._next_look = 0, max(self.min_frames, min(int(window), self._prior))
         self._offered = 0  # frames asked about (`wants_frame`)
 
     def wants_frame(self) -> bool:
@@ -124,6 +138,12 @@ class DisparityCalibration:
     def frames(self) -> int:
         """Frames pooled since the offset last changed."""
         return len(self._estimates_px)
+
+    @property
+    def evidence_frames(self) -> int:
+        """Estimates behind the offset in use: this drive's since it last changed, and the earlier drives'
+        (`prior_frames`) while it has not (what a saved memory keeps for the next session)."""
+        return self._prior + self._pooled
 
     def add(self, estimate_px: float, sigma_px: float) -> bool:
         """Take one frame's estimate (px, against the offset in use) and its standard error; True when the
@@ -148,5 +168,5 @@ class DisparityCalibration:
         # Never beyond what `vo.disparity_offset_px` may be set to: more is a broken rig, not an offset.
         self.offset_px = float(np.clip(self.offset_px + median, -LIMIT_PX, LIMIT_PX))
         self._estimates_px.clear()
-        self._pooled, self._next_look = 0, self.min_frames
+        self._prior, self._pooled, self._next_look = 0, 0, self.min_frames
         return True

@@ -480,6 +480,12 @@ class StereoOdometry:
         return self._pair.calibration.offset_px
 
     @property
+    def disparity_offset_frames(self) -> int:
+        """Estimates behind the disparity offset in use (`DisparityCalibration.evidence_frames`): what a saved
+        memory keeps with the offset, so that a later session does not overturn it on its first street."""
+        return self._pair.calibration.evidence_frames
+
+    @property
     def stereo_bias_px(self) -> float:
         """`StereoPairWatch.bias_px`: the median disparity residual, px (NaN before its window fills)."""
         return self._pair.bias_px

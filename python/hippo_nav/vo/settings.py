@@ -200,6 +200,15 @@ class VoParams(ConfigSection):
     disparity_calibration_min_frames: int = Field(
         10, ge=1, le=100_000, description="estimates pooled before the offset in use may change"
     )
+    disparity_calibration_prior_frames: int = Field(
+        0,
+        ge=0,
+        le=10**9,
+        description="estimates that earlier drives of this rig pooled for `disparity_offset_px`: the offset is "
+        "first judged after min(`disparity_calibration_window`, this) of this drive's estimates instead of "
+        "`disparity_calibration_min_frames` (a session started in a saved memory gets the saved run's, with its "
+        "offset; docs/memory.md)",
+    )
     disparity_calibration_max_sigma_px: float = Field(
         0.1,
         gt=0.0,

@@ -54,6 +54,7 @@ class StereoPairWatch:
             p.disparity_calibration_min_frames,
             p.disparity_calibration_deadband_px,
             p.disparity_calibration_max_sigma_px,
+            p.disparity_calibration_prior_frames,
         )
         self.reset()
 
