@@ -12,7 +12,7 @@ re-placed on the map as day 2 corrected it: the session's `trajectory_sessions.t
 compared with the one run over the same frames.
 
 One run is one draw of the VO: a run started a frame later tracks other corners and its map over 00's last
-thousand frames differs by up to 1.4x (docs/memory.md). So there are `--one-runs` of them (started at frames
+thousand frames differs by up to 1.6x (docs/memory.md). So there are `--one-runs` of them (started at frames
 0, 1, ...), and every error is taken over the frames all of them have (from frame `--one-runs` − 1 on); a
 session is compared with their mean (`merged_over_one_runs`). `--session-config` (JSON) is merged into every day-2 session's
 config (e.g. `'{"closure": {"relocalisation": {"retrace": {"max_links": 0}}}}'`: no retrace at the join).
@@ -22,7 +22,8 @@ config (e.g. `'{"closure": {"relocalisation": {"retrace": {"max_links": 0}}}}'`:
         [--out runs/sessions] [--day1 EXISTING_DAY1_RESULTS] [--whole EXISTING_WHOLE_RESULTS]
         [--whole-changed EXISTING_WHOLE_RUN_ON_THE_CHANGED_RENDER]
 
-Not a test (no assertions; pytest does not collect it): a reproducible measurement (~20 min on 2 cores for 00).
+Not a test (no assertions; pytest does not collect it): a reproducible measurement (~45 min on 2 cores for 00
+with `--changed`, three one runs of each render).
 """
 
 from __future__ import annotations
