@@ -200,10 +200,8 @@ def test_the_shipped_whole_sequence_benchmark_is_the_old_scripts_runs_and_the_pa
             (sequence, "drift", "Geometric"),
             (sequence, "vo", "RatSlam"),
         } <= variants
-    for sequence in (
-        "07",
-        "09",
-    ):  # their loops end where the drive began: the VO and the drifting odometry only
+    # 07 and 09, whose loops end where the drive began: the VO and the drifting odometry only.
+    for sequence in ("07", "09"):
         assert {(r.odometry.kind, r.pipeline_config().preset) for r in runs if r.sequence == sequence} == {
             ("vo", "default"),
             ("drift", "default"),
