@@ -13,7 +13,7 @@ Two measurements of the same sequence, interleaved round by round:
     python tests/benchmarks/cost_budget.py --kitti KITTI_ROOT [--sequence 06] [--rounds 3] [--config FILE]
 
 `--config` adds sections to the defaults (e.g. bird's-eye closures on:
-`{"parts": {"closure": ["relocalisation", "view_cell", "proximity", "birdseye"]}}`). The median over the rounds
+`{"parts": {"closure": ["relocalisation", "view_cell", "proximity", "home", "birdseye"]}}`). The median over the rounds
 is printed as a Markdown table. Not a test (no assertions; pytest does not collect it).
 """
 

@@ -7,7 +7,7 @@ import logging
 
 import numpy as np
 import pytest
-from hippo_nav.closure import DEFAULT_PROPOSERS, ClosureChain, KeyframeStore
+from hippo_nav.closure import ClosureChain, KeyframeStore
 from hippo_nav.closure.proximity import ProximityProposer
 from hippo_nav.closure.relocalisation import RelocalisationProposer
 from hippo_nav.closure.view_cell import ViewCellProposer
@@ -49,8 +49,9 @@ def test_a_config_of_flat_closure_keys_reads_as_the_sections_it_meant(caplog):
     assert read == config_from_dict(new)
     assert "closure.proximity_min_inliers → closure.proximity.min_inliers" in caplog.text
     assert "closure.birdseye = true" in caplog.text
-    # The old single proposer's name is the default chain.
-    assert config_from_dict({"parts": {"closure": "view_cell_pnp"}}).parts.closure == list(DEFAULT_PROPOSERS)
+    # The old single proposer's name is the chain it stood for (home closures came later).
+    old_chain = ["relocalisation", "view_cell", "proximity"]
+    assert config_from_dict({"parts": {"closure": "view_cell_pnp"}}).parts.closure == old_chain
 
 
 def _chain(calibration) -> ClosureChain:

@@ -109,4 +109,4 @@ def test_a_registered_part_has_its_section_without_being_chosen(toys):
     defaults = config_from_dict({})
     assert defaults.section("thumbnail_cells") == ThumbnailConfig()
     assert defaults.closure.section("nearest") == NearestVertexConfig()
-    np.testing.assert_equal(defaults.parts.closure, ["relocalisation", "view_cell", "proximity"])
+    np.testing.assert_equal(defaults.parts.closure, ["relocalisation", "view_cell", "proximity", "home"])

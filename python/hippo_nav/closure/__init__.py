@@ -9,9 +9,10 @@ image (`measure.py`: matches, PnP with RANSAC, `camera_cur_from_camera_key`); a 
 enough inliers, its planar part and covariance (from the reprojection Jacobian) becoming the loop link.
 
 The proposers (`PROPOSERS`, one module each, each with its config section `closure.<name>`): `view_cell`
-(familiar views), `proximity` (the vertex where the odometry puts the agent), `relocalisation` (a session
-inside a loaded map), `birdseye` (stereo structure from above, for streets driven the other way), `sequence` (the last views along
-the path matched in order, for revisits under other light that a drifting odometry misplaces).
+(familiar views), `proximity` (the vertex where the odometry puts the agent), `home` (where the session began,
+once the agent has been away), `relocalisation` (a session inside a loaded map), `birdseye` (stereo structure
+from above, for streets driven the other way), `sequence` (the last views along the path matched in order, for
+revisits under other light that a drifting odometry misplaces).
 
 ```python
 from hippo_nav.closure import ClosureConfig, KeyframeExtractor, LoopMeasurer

@@ -8,6 +8,7 @@ from collections.abc import Callable
 
 from hippo_nav.closure.base import ClosureProposer
 from hippo_nav.closure.birdseye import BirdsEyeConfig, BirdsEyeProposer
+from hippo_nav.closure.home import HomeConfig, HomeProposer
 from hippo_nav.closure.proximity import ProximityConfig, ProximityProposer
 from hippo_nav.closure.relocalisation import RelocalisationConfig, RelocalisationProposer
 from hippo_nav.closure.sequence import SequenceConfig, SequenceProposer
@@ -22,10 +23,11 @@ PROPOSERS: dict[str, Part[ProposerFactory]] = {
     "relocalisation": Part(RelocalisationProposer, RelocalisationConfig, "relocalisation"),
     "view_cell": Part(ViewCellProposer, ViewCellConfig, "view_cell"),
     "proximity": Part(ProximityProposer, ProximityConfig, "proximity"),
+    "home": Part(HomeProposer, HomeConfig, "home"),
     "birdseye": Part(BirdsEyeProposer, BirdsEyeConfig, "birdseye"),
     "sequence": Part(SequenceProposer, SequenceConfig, "sequence"),
 }
 
 # Bird's-eye and sequence closures are off by default for their cost where the map has old places around
-# (docs/results.md, "Cost").
-DEFAULT_PROPOSERS = ("relocalisation", "view_cell", "proximity")
+# (docs/results.md, "Cost"); home closures measure only near where the session began (docs/map.md).
+DEFAULT_PROPOSERS = ("relocalisation", "view_cell", "proximity", "home")

@@ -316,8 +316,8 @@ class PipelineConfig(PartSections):
         if not isinstance(parts, dict) or not isinstance(closure, dict):
             return data
         proposers = parts.get("closure", list(DEFAULT_PROPOSERS))
-        if proposers == "view_cell_pnp":  # the one proposer of then, which did all of these
-            proposers = list(DEFAULT_PROPOSERS)
+        if proposers == "view_cell_pnp":  # the one proposer of then, which did all of these (and no more)
+            proposers = ["relocalisation", "view_cell", "proximity"]
         if not isinstance(proposers, list):
             return data
         closure, proposers, moved = migrate_flat_closure(closure, proposers)
