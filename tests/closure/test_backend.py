@@ -25,6 +25,9 @@ from hippo_nav.synthetic import (
 from hippo_nav.vo.replay import ReplayOdometry
 
 QUIET = {"output": {"figures": False, "save_map": False}}
+# The default chain without `home`, which would close the demo's return onto its start however the odometry
+# drifted: the tests that show what the proximity ring reaches and does not reach leave it out.
+WITHOUT_HOME = {"closure": ["relocalisation", "view_cell", "proximity"]}
 
 
 def _replay(tmp_path, dataset, world_from_camera: np.ndarray, name: str = "odometry.txt") -> ReplayOdometry:
@@ -153,7 +156,8 @@ def test_proximity_reaches_a_revisit_the_odometry_put_far_off(demo, tmp_path):
     metrics = {}
     for per_m in (0.0, 0.1):
         closure = {"proximity": {"radius_m": 1.0, "radius_per_m": per_m}}
-        config = config_from_dict({**QUIET, "view_words": {"min_inliers": 20000}, "closure": closure})
+        settings = {**QUIET, "parts": WITHOUT_HOME, "view_words": {"min_inliers": 20000}, "closure": closure}
+        config = config_from_dict(settings)
         replay = _replay(tmp_path, demo, drifted, f"odometry_{per_m}.txt")
         metrics[per_m] = Pipeline(demo, config, odometry=replay).run(None).metrics
     assert metrics[0.0]["loop_closures"] == 0, metrics[0.0]["closure_attempts"]
@@ -217,6 +221,7 @@ def test_proximity_is_not_tried_beyond_its_radius(demo, tmp_path):
     config = config_from_dict(
         {
             **QUIET,
+            "parts": WITHOUT_HOME,
             "view_words": {"min_inliers": 20000},
             "closure": {"proximity": {"radius_m": 0.05, "radius_per_m": 0.0}},
         }
