@@ -12,6 +12,7 @@ import pytest
 from hippo_nav.closure.base import ClosureContext
 from hippo_nav.closure.home import HomeConfig, HomeProposer
 from hippo_nav.io import write_kitti_poses
+from hippo_nav.map import new_experience_map
 from hippo_nav.pipeline import Pipeline, config_from_dict
 from hippo_nav.vo.replay import ReplayOdometry
 
@@ -25,6 +26,9 @@ class _Map:
         self.odometer_m = 0.0
         self.gated: dict[int, tuple[float, float, float]] = {}  # vertex → agent_from_vertex, when admitted
         self.unjoined_from: int | None = None
+
+    def __len__(self) -> int:
+        return 0  # as the proposer first sees it: empty (a map with vertices is a real one, below)
 
     def loop_candidates(self, vertices, step):
         return [(v, self.gated[v], 5.0, 100.0) for v in vertices if v in self.gated]
@@ -133,6 +137,52 @@ def test_a_session_inside_a_memory_gets_a_home_of_its_own_and_the_homes_outlive_
     # A damaged state starts fresh instead of failing.
     fresh = HomeProposer()
     fresh.restore_state({"vertices": np.array([1, 2])})
+    assert fresh._homes == [] and fresh._pending
+
+
+class _Resumed:
+    """A loaded map as a resumed run sees it: its odometer where the saved run stopped."""
+
+    def __init__(self, experience_map, odometer_m: float) -> None:
+        self.experience_map, self.odometer_m = experience_map, odometer_m
+
+    def __len__(self) -> int:
+        return len(self.experience_map)
+
+    def __getattr__(self, name):
+        return getattr(self.experience_map, name)
+
+
+def test_a_map_made_without_home_gives_every_session_its_home_from_the_map():
+    # A memory saved before `home` existed (or by a chain without it) holds no home: the homes are read from the
+    # map at the first frame — each session's first vertex (no odometry link leads to it) and those within
+    # `length_m` of travel after it. Without that a resumed run took its first new vertex, wherever it was, for home.
+    experience_map = new_experience_map()
+    sessions = [(0.0, 8), (200.0, 6)]  # (odometer at a session's first vertex, vertices), a vertex a 2 m
+    for start_m, count in sessions:
+        first = len(experience_map)
+        for i in range(count):
+            vertex = experience_map.add_vertex(0, (0.0, 0.0), 0.0, (2.0 * i, start_m, 0.0), start_m + 2.0 * i)
+            if i > 0:
+                experience_map.add_link(vertex - 1, vertex, (2.0, 0.0, 0.0), 0.2)
+        if first > 0:  # the second session joined the first by a closure: a loop link, not odometry
+            experience_map.add_link(first, 2, (0.0, 0.0, 0.0), 0.0, is_loop=True)
+    proposer = HomeProposer(HomeConfig(length_m=5.0))
+    resumed = _Resumed(experience_map, odometer_m=212.0)
+    context = ClosureContext(None, (1.0, 0.0, 0.0), None, resumed, _Store())  # type: ignore[arg-type]
+    proposer.propose(context)
+    assert proposer._homes == [0, 1, 2, 8, 9, 10]
+    assert not proposer._pending and proposer._home_odometer_m == 200.0
+    # The run goes on (resumed): its next vertex is not home.
+    proposer.after_map(SimpleNamespace(created=True, vertex=14, loop_closure=None))  # type: ignore[arg-type]
+    assert proposer._homes == [0, 1, 2, 8, 9, 10]
+    # A saved state wins over the map, and an empty map reads nothing.
+    restored = HomeProposer()
+    restored.restore_state(proposer.export_state())
+    restored.propose(context)
+    assert restored._homes == [0, 1, 2, 8, 9, 10]
+    fresh = HomeProposer()
+    fresh.propose(ClosureContext(None, (1.0, 0.0, 0.0), None, new_experience_map(), _Store()))  # type: ignore[arg-type]
     assert fresh._homes == [] and fresh._pending
 
 

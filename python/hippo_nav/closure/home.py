@@ -10,7 +10,8 @@ at the cost of one measurement every `every_m` of travel while the agent is ther
 sequence proposer measures hundreds.
 
 Home is the session's first vertex and those made within `length_m` of travel after it (a session inside a
-loaded memory gets its own: where it began). The proposer arms when the agent has been away: every home vertex
+loaded memory gets its own: where it began; a memory saved without this proposer's state, before it existed or
+by a chain without it, gives every session's home from its map at the first frame). The proposer arms when the agent has been away: every home vertex
 out of the map's gate although far enough back along the path (`min_loop_separation_m`), so a drive still leaving
 home measures nothing. Armed, a frame (at most one per `every_m` of travel) measures each home vertex the gate
 admits that was passed in about the agent's direction (within `max_heading_deg` + `max_heading_deg_per_m` × the
@@ -105,10 +106,15 @@ class HomeProposer:
         self._away = False  # armed: the agent has been out of home's gate since the last closure onto it
         self._next_try_m = -np.inf  # the odometer before which no home measurement is tried
         self._separation_m: float | None = None  # the map's `min_loop_separation_m`
+        self._known = False  # the homes known: from a restored state, or read from the map at the first frame
 
     def propose(self, context: ClosureContext) -> ClosureAttempt:
         experience_map, cfg = context.experience_map, self.config
         self._odometer_m = experience_map.odometer_m + float(np.hypot(*context.planar_step[:2]))
+        if not self._known:
+            self._known = True
+            if not self._homes and len(experience_map) > 0:
+                self._homes_from_map(experience_map)
         if context.lost:
             # A session started inside a loaded memory begins at a home of its own.
             if not self._lost:
@@ -165,6 +171,25 @@ class HomeProposer:
         gated = context.experience_map.loop_candidates(homes, context.planar_step)
         return [(int(c[0]), float(c[1][2]), float(c[3])) for c in gated]
 
+    def _homes_from_map(self, experience_map: ExperienceMap) -> None:
+        """Every session's home read from a map made without this proposer (a memory saved before it, or by a
+        chain without it): a session's first vertex is the one no odometry link leads to (vertex 0, and each
+        `start_session`'s first), its home that vertex and those made within `length_m` of travel after it.
+        Without this a resumed run would take the first vertex it makes, wherever it is, for where it began."""
+        graph = experience_map.export()
+        odometer_m = np.asarray(graph["vertex_odometer_m"], np.float64)
+        led_to = np.zeros(len(odometer_m), bool)
+        led_to[np.asarray(graph["links"], np.int64)[~np.asarray(graph["link_is_loop"], bool), 1]] = True
+        starts = np.flatnonzero(~led_to)
+        ends = np.r_[starts[1:], len(odometer_m)]
+        for start, end in zip(starts, ends, strict=True):
+            travelled_m = odometer_m[start:end] - odometer_m[start]
+            self._homes.extend(
+                int(start) + int(i) for i in np.flatnonzero(travelled_m <= self.config.length_m)
+            )
+        self._home_odometer_m = float(odometer_m[starts[-1]])
+        self._pending = False  # this session's home is among them; a new session, lost, gets its own
+
     def _min_separation_m(self, experience_map: ExperienceMap) -> float:
         if self._separation_m is None:
             self._separation_m = float(json.loads(experience_map.params_json())["min_loop_separation_m"])
@@ -206,3 +231,4 @@ class HomeProposer:
         self._homes = [int(v) for v in vertices]
         self._home_odometer_m, self._next_try_m = float(odometer_m[0]), float(odometer_m[1])
         self._pending, self._away = bool(flags[0]), bool(flags[1])
+        self._known = True
