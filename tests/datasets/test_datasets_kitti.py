@@ -148,6 +148,18 @@ def test_malformed_calibration(kitti_root: Path, calib: str, phrase: str) -> Non
         KittiOdometry(kitti_root, "03")
 
 
+def test_text_files_saved_with_a_byte_order_mark_read_as_without(kitti_root: Path) -> None:
+    # Editors on Windows start UTF-8 files with a byte-order mark; calib.txt then had "no P0 line".
+    plain = KittiOdometry(kitti_root, "03")
+    seq = kitti_root / "sequences" / "03"
+    for name in ("calib.txt", "times.txt"):
+        (seq / name).write_bytes(b"\xef\xbb\xbf" + (seq / name).read_bytes())
+    marked = KittiOdometry(kitti_root, "03")
+    for name in ("fx", "fy", "cx", "cy", "baseline_m"):
+        assert getattr(marked.calibration, name) == getattr(plain.calibration, name)
+    np.testing.assert_array_equal(marked.timestamps_s, plain.timestamps_s)
+
+
 def test_malformed_times_and_short_pose_file(kitti_root: Path) -> None:
     seq = kitti_root / "sequences" / "03"
     (seq / "times.txt").write_text("0.0\n0.1\nzero point two\n")

@@ -157,3 +157,19 @@ def test_a_damaged_path_costs_the_earlier_frames_never_the_run(day_one, demo, tm
     if sessions is not None:  # arrays of the right form pointing at vertices the map lacks
         assert sessions["unplaced_frames"] == LAP, sessions
     assert (tmp_path / "day_two" / "memory" / "memory.json").is_file()
+
+
+def test_sessions_that_cannot_be_aligned_are_unscored_never_the_run_lost():
+    # A later session on black frames never moves: every frame of both sessions at one point. The score is
+    # unavailable (said), as for a trajectory that cannot be aligned; before, the run failed after its last
+    # frame and wrote nothing.
+    from hippo_nav.pipeline.sessions import SessionsTrack, sessions_metrics
+    from hippo_nav.pipeline.truth import LoadedTruth
+
+    track = SessionsTrack(np.repeat([0, 1], 5), np.arange(10.0), np.zeros((10, 3)), earlier_frames=5)
+    truth = LoadedTruth(np.zeros((3, 3)), np.column_stack([np.arange(5.0), np.zeros(5), np.zeros(5)]))
+    ground_truth = np.tile(np.eye(4), (5, 1, 1))
+    ground_truth[:, 0, 3] = np.arange(5.0, 10.0)
+    metrics = sessions_metrics(track, truth, ground_truth, None)
+    assert metrics["frames"] == {"0": 5, "1": 5}
+    assert "ate_2d_m" not in metrics and "same point" in metrics["unscored"]

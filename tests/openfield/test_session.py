@@ -139,6 +139,7 @@ def test_a_csv_trajectory_drives_a_session(tmp_path):
         ("t,x,y\n0,0,0\n1,nan,0\n", "finite"),
         ("t,x,y\n0,0,0\n0,1,0\n", "increasing"),
         ("t,x,y\n0,zero,0\n1,1,0\n", "not a number"),
+        ("t,x,y\n0,0,0\n1e9,1,1\n", "more than a session"),  # milliseconds, or a typo: 373 GiB of steps
     ],
 )
 def test_a_bad_trajectory_csv_says_what_is_wrong(tmp_path, text, words):
@@ -155,6 +156,31 @@ def test_a_recording_round_trips_and_a_truncated_file_is_refused(session: Record
     assert all(np.array_equal(back.populations[n], session.populations[n]) for n in session.populations)
     path.write_bytes(path.read_bytes()[:1000])
     with pytest.raises(RecordingError, match="not a readable"):
+        Recording.load(path)
+
+
+@pytest.mark.parametrize(
+    ("edit", "words"),
+    [
+        (
+            lambda a: a.update({"rates/grid_dorsal": a["rates/grid_dorsal"][:10]}),
+            r"rates/grid_dorsal has shape",
+        ),
+        (lambda a: a.update({"position_m": a["position_m"][:, :1]}), r"position_m has shape"),
+        (lambda a: a.update({"phase/place": a["phase/place"][:3]}), r"phase/place has shape"),
+        (lambda a: a.pop("decoded_heading_rad"), r"no decoded_heading_rad array"),
+    ],
+)
+def test_a_recording_whose_arrays_disagree_is_refused_naming_the_array(
+    session: Recording, tmp_path, edit, words
+):
+    # Before, `figures --run` on such a file failed deep inside a rate map with numpy's reshape error.
+    path = session.save(tmp_path / "recording.npz")
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    edit(arrays)
+    np.savez(path, **arrays)
+    with pytest.raises(RecordingError, match=words + ".*write the recording again"):
         Recording.load(path)
 
 

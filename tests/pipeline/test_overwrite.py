@@ -13,7 +13,8 @@ from pathlib import Path
 import pytest
 from conftest import Frames
 from hippo_nav.cli import main
-from hippo_nav.memory import read_memory
+from hippo_nav.io import DatasetError
+from hippo_nav.memory import SavedMemoryError, read_memory
 from hippo_nav.pipeline.results import PREVIOUS_RESULTS, RESULTS_MARK, prepare_results_folder
 
 FRAMES = 12
@@ -74,6 +75,74 @@ def test_a_map_read_from_the_folder_it_overwrites_survives_a_run_that_fails(demo
     read_memory(first_run)
 
 
+def _corrupt_frame_5(i):
+    if i == 5:
+        raise DatasetError("frame 000005.png: image is corrupt (truncated); re-copy it")
+
+
+@pytest.mark.parametrize("stop", ["corrupt_frame", "ctrl_c"])
+def test_an_overwrite_that_stops_before_its_last_frame_keeps_the_earlier_run_whole(
+    demo, first_run, monkeypatch, capsys, stop
+):
+    """A run stopped mid-sequence (an unreadable frame, Ctrl-C) with --overwrite: a part of a run never
+    replaces a whole one — the earlier results and map stay byte for byte, the part goes beside them."""
+    before = _fingerprint(first_run)
+
+    def ctrl_c_at_frame_5(i):
+        if i == 5:
+            raise KeyboardInterrupt
+
+    on_load = _corrupt_frame_5 if stop == "corrupt_frame" else ctrl_c_at_frame_5
+    monkeypatch.setattr(
+        "hippo_nav.pipeline.runner.open_input", lambda *a, **k: Frames(demo, FRAMES, on_load=on_load)
+    )
+    assert _rerun_into_itself(first_run) == (2 if stop == "corrupt_frame" else 130)
+    after = _fingerprint(first_run)
+    after.pop(RESULTS_MARK), before.pop(RESULTS_MARK)  # the lock's pid
+    assert after == before, "the earlier results and map stayed byte for byte"
+    assert not (first_run / PREVIOUS_RESULTS).exists()
+    (stopped,) = first_run.parent.glob(f"{first_run.name}.stopped-*")
+    assert json.loads((stopped / "metrics.json").read_text())["frames"] == 5
+    assert read_memory(stopped).info["counts"]["frames"] == 5
+    said = capsys.readouterr()
+    assert (
+        str(stopped) in said.err + said.out
+        and f"earlier results in {first_run} are kept" in said.err + said.out
+    )
+
+
+def test_an_overwrite_that_stops_mid_run_keeps_the_run_a_killed_overwrite_set_aside(
+    demo, first_run, monkeypatch
+):
+    """A run killed outright left the earlier complete run set aside; the next --overwrite stops on a corrupt
+    frame: that complete run comes back, and the stopped run's part goes beside it."""
+    memory_before = _fingerprint(first_run / "memory")
+    _, lock, _ = prepare_results_folder(first_run, overwrite=True)  # the run that will be killed
+    (first_run / "metrics.json").write_text('{"frames": 3, "trunc')  # what it part-wrote before the kill
+    lock.close()
+    monkeypatch.setattr(
+        "hippo_nav.pipeline.runner.open_input", lambda *a, **k: Frames(demo, FRAMES, on_load=_corrupt_frame_5)
+    )
+    assert main(["run", "--no-progress", "--no-figures", "--out", str(first_run), "--overwrite"]) == 2
+    assert _fingerprint(first_run / "memory") == memory_before
+    assert json.loads((first_run / "metrics.json").read_text())["frames"] == FRAMES
+    assert not (first_run / PREVIOUS_RESULTS).exists()
+    assert len(list(first_run.parent.glob(f"{first_run.name}.stopped-*"))) == 1
+
+
+def test_an_overwrite_that_stops_mid_run_in_a_folder_without_an_earlier_run_writes_there(
+    demo, tmp_path, monkeypatch
+):
+    """Nothing to keep: the stopped run's results go where they were asked for."""
+    monkeypatch.setattr(
+        "hippo_nav.pipeline.runner.open_input", lambda *a, **k: Frames(demo, FRAMES, on_load=_corrupt_frame_5)
+    )
+    out = tmp_path / "fresh"
+    assert main(["run", "--no-progress", "--no-figures", "--out", str(out), "--overwrite"]) == 2
+    assert json.loads((out / "metrics.json").read_text())["frames"] == 5
+    assert not list(tmp_path.glob("fresh.stopped-*"))
+
+
 def test_overwriting_a_folder_with_its_own_map_writes_the_new_map_and_drops_the_old(first_run):
     old_manifest = json.loads((first_run / "memory" / "memory.json").read_text())
     assert _rerun_into_itself(first_run) == 0
@@ -94,8 +163,11 @@ def test_a_killed_overwrite_leaves_the_earlier_run_set_aside_and_the_next_one_ke
     assert previous is not None and _fingerprint(first_run / PREVIOUS_RESULTS / "memory") == memory_before
     (first_run / "metrics.json").write_text('{"frames": 3, "trunc')  # what it part-wrote before the kill
     lock.close()
-    # The earlier map is still readable where it was set aside, e.g. to start the next run from it.
+    # The earlier map is still readable where it was set aside, e.g. to start the next run from it, and a
+    # --map of the folder itself says where it is.
     read_memory(first_run / PREVIOUS_RESULTS)
+    with pytest.raises(SavedMemoryError, match=f"give --map {first_run / PREVIOUS_RESULTS}"):
+        read_memory(first_run)
     assert (
         main(["run", "--no-progress", "--no-figures", "--map", str(first_run / PREVIOUS_RESULTS),
               "--out", str(first_run), "--overwrite"])

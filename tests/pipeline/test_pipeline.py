@@ -160,10 +160,16 @@ class _FailingOdometry:
         return step
 
 
-def test_vo_failures_and_absurd_motion_are_flagged_not_fatal(demo):
+def test_vo_failures_and_absurd_motion_are_flagged_not_fatal(demo, caplog):
     data = Frames(demo, 20)
-    odometry = _FailingOdometry(StereoOdometry(data.calibration, VoParams()), fail={6, 7}, absurd={12})
-    result = Pipeline(data, odometry=odometry).run(None)
+    odometry = _FailingOdometry(
+        StereoOdometry(data.calibration, VoParams()), fail={6, 7}, absurd={12, 14, 15}
+    )
+    with caplog.at_level("WARNING", logger="hippo_nav"):
+        result = Pipeline(data, odometry=odometry).run(None)
+    # Absurd motion is said, once for each stretch of clamped frames (12; 14-15), naming its speed.
+    said = [r.getMessage() for r in caplog.records if "beyond the networks' limits" in r.getMessage()]
+    assert len(said) == 2 and all("check the odometry" in line for line in said), said
     record = result.record
     assert len(record) == 20
     assert record.vo_status[6] == record.vo_status[7] == "failed"

@@ -55,9 +55,18 @@ def test_render_is_a_kitti_root_that_resumes(kitti_root, tmp_path):
     # The partial render already reads as a KITTI sequence of the frames present.
     partial = KittiOdometry(out, "07")
     assert len(partial) == 10 and "10 of 42" in partial.note
+    # A frame emptied or cut short since (a full disk, a copy that stopped) is rendered again on resuming.
+    (images / "000003.png").write_bytes(b"")
+    cut = out / "sequences" / "07" / "image_1" / "000007.png"
+    cut.write_bytes(cut.read_bytes()[:-20])
     render_kitti(kitti_root, "07", out, image_size_px=SIZE, workers=1)
     assert len(list(images.glob("*.png"))) == 42
-    assert all((images / name).stat().st_mtime_ns == stamp for name, stamp in first.items())
+    assert all(
+        (images / name).stat().st_mtime_ns == stamp
+        for name, stamp in first.items()
+        if name not in ("000003.png", "000007.png")
+    )
+    assert KittiOdometry(out, "07")[3].left.std() > 5 and KittiOdometry(out, "07")[7].right.std() > 5
     dataset = KittiOdometry(out, "07")
     np.testing.assert_allclose(dataset.timestamps_s, 0.1 * np.arange(42) + 3.0)
     truth = read_kitti_poses(out / "poses" / "07.txt")

@@ -224,7 +224,7 @@ def _print_json(args: argparse.Namespace, result: RunResult, failure: HippoNavEr
     folder they were written to instead, or null)."""
     from hippo_nav.pipeline.results import ResultsNotWrittenError, json_safe
 
-    results: Path | str | None = args.out
+    results: Path | str | None = result.out_dir if result.out_dir is not None else args.out
     if failure is None:
         reason, code, signal = _exit(result)
     elif isinstance(failure, ResultsNotWrittenError):
@@ -262,7 +262,11 @@ def _print_result(args: argparse.Namespace, result: RunResult) -> int:
         print(format_bump_table([r for r in rows if r["frame"] == last_frame]))
     reason, code, _ = _exit(result)
     if result.interrupted:
-        print(f"interrupted after {result.metrics['frames']} frames; results so far written to {args.out}")
+        written = result.out_dir if result.out_dir is not None else args.out
+        kept = "" if Path(written) == Path(args.out) else f" (the earlier results in {args.out} are kept)"
+        print(
+            f"interrupted after {result.metrics['frames']} frames; results so far written to {written}{kept}"
+        )
         return code
     if reason == "interrupted":  # every frame, but a signal during the correction or the figures
         print(f"interrupted after the last frame; results written to {args.out} (see metrics.json)")

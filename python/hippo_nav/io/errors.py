@@ -68,6 +68,9 @@ def read_text(path: str | Path, what: str = "file", max_bytes: int = MAX_DATA_FI
     `DatasetError` naming the file, the line and the byte (not a `UnicodeDecodeError` traceback). Other
     read errors (`OSError`) pass through."""
     data = read_bytes(path, what, max_bytes)
+    # A byte-order mark (editors on Windows write one) is not text: without this, calib.txt's "P0:" read
+    # as "\ufeffP0:" and the file had "no P0 line".
+    data = data.removeprefix(b"\xef\xbb\xbf")
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as err:

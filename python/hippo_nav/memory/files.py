@@ -165,6 +165,13 @@ def read_memory(path: str | Path) -> SavedMemory:
     folder = memory_folder(path)
     manifest_path = folder / MANIFEST
     if not manifest_path.is_file():
+        aside = folder.parent / ".hippo_nav_previous"  # `--overwrite`'s (pipeline.results.PREVIOUS_RESULTS)
+        if folder.name == MEMORY_FOLDER and (aside / MEMORY_FOLDER / MANIFEST).is_file():
+            raise _fail(
+                folder,
+                f"there is no memory.json: an --overwrite run into {folder.parent} never finished, and the "
+                f"earlier run it replaced, memory included, is in {aside}; give --map {aside}",
+            )
         raise _fail(
             folder,
             "there is no memory.json: give the results folder of a finished `hippo-nav run` (it holds "

@@ -125,6 +125,10 @@ def smooth_heading(heading_rad: np.ndarray, step_dt_s: float) -> np.ndarray:
     return np.angle(np.exp(1j * smooth(np.unwrap(heading_rad), HEAD_SMOOTHING_S / step_dt_s)))
 
 
+MAX_SESSION_S = 86_400.0
+"""The longest session (a day, as `record --duration`): the networks are stepped every `step_dt_s` of it."""
+
+
 def trajectory_from_csv(path: str | Path, step_dt_s: float) -> Trajectory:
     """A trajectory from a CSV file with a header naming `t` (s), `x`, `y` (m) and optionally `heading`
     (rad); resampled to `step_dt_s` by linear interpolation (headings on the circle). Without a heading,
@@ -148,6 +152,11 @@ def trajectory_from_csv(path: str | Path, step_dt_s: float) -> Trajectory:
     t = table[:, 0]
     if len(t) < 2 or not np.isfinite(table).all() or np.any(np.diff(t) <= 0):
         raise HippoNavError(f"{path}: needs ≥ 2 rows of finite values with strictly increasing t")
+    if t[-1] - t[0] > MAX_SESSION_S:
+        raise HippoNavError(
+            f"{path}: spans {t[-1] - t[0]:.6g} s, more than a session's {MAX_SESSION_S:g} s (a day); is t in "
+            "seconds? Split a longer trajectory into sessions"
+        )
     time = np.arange(0.0, t[-1] - t[0] + 1e-9, step_dt_s)
     if len(time) < 2:
         raise HippoNavError(f"{path}: shorter than two steps of {step_dt_s} s")

@@ -196,7 +196,8 @@ class PreviousResults:
 
     `set_aside` moves them (renames: nothing is copied or deleted, a link moves as a link) before the first
     frame; `discard` removes them once the new results are written whole; `restore` puts them back when the
-    new run wrote nothing (stopped before its first frame, or every file went to a rescue folder). A run
+    new run wrote nothing here (stopped before its first frame, its results went beside the folder because it
+    stopped before its last frame, or every file went to a rescue folder). A run
     killed outright leaves them set aside: the next `--overwrite` keeps that complete earlier run and drops
     the killed run's part-written files instead."""
 
@@ -235,6 +236,10 @@ class PreviousResults:
                 "was removed"
             ) from None
         return previous
+
+    def holds_results(self) -> bool:
+        """An earlier run's files are set aside (not an empty folder, nor nothing set aside)."""
+        return self.aside.is_dir() and not self.aside.is_symlink() and any(self.aside.iterdir())
 
     def discard(self) -> None:
         """The new results are written whole: the earlier ones go."""
@@ -633,6 +638,18 @@ class ResultsNotWrittenError(WriteError):
         else:
             where = f"and they could not be written elsewhere either ({rescue_error}); nothing was saved"
         self.args = (f"cannot write {failure.path}: {failure.reason}; {where}",)
+
+
+def stopped_run_folder(out: Path) -> Path:
+    """A fresh folder beside `out` for the results of an `--overwrite` run that stopped before its last frame
+    (an unreadable frame, a signal) while `out` holds an earlier run: a part of a run never replaces a whole
+    one. `OUT.stopped-XXXX` next to `out`, or in a rescue folder when its parent takes no new folder."""
+    for parent in [out.parent, *rescue_folder_candidates()]:
+        try:
+            return Path(tempfile.mkdtemp(prefix=f"{out.name}.stopped-", dir=parent))
+        except OSError:
+            continue
+    raise WriteError(out.parent, "no folder could be made for the stopped run's results")
 
 
 def rescue_folder_candidates() -> list[Path]:

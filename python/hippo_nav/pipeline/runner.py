@@ -41,7 +41,7 @@ from hippo_nav.pipeline.frontend import (
 )
 from hippo_nav.pipeline.observers import FrameEvent, Observer, RunInfo
 from hippo_nav.pipeline.records import RunRecord, RunRecorder, RunResult
-from hippo_nav.pipeline.results import RunFacts
+from hippo_nav.pipeline.results import PreviousResults, RunFacts
 from hippo_nav.pipeline.sessions import path_to_save, sessions_metrics, sessions_track
 from hippo_nav.pipeline.truth import LoadedTruth, loaded_truth, truth_to_save
 from hippo_nav.system import parts
@@ -103,6 +103,7 @@ class Pipeline:
         )
         self.observers = list(observers)
         self._written = False  # this run's results folder is written whole (`run`, `_finish`)
+        self._previous: PreviousResults | None = None  # the earlier run's files `--overwrite` set aside
         n = len(dataset)
         wanted = self.config.output.state_frames
         outside = [p for p in (wanted or []) if not 0 <= p < n]
@@ -138,12 +139,14 @@ class Pipeline:
         from hippo_nav.pipeline.results import prepare_results_folder
 
         out_dir, lock, previous = prepare_results_folder(out_dir, overwrite)
+        self._previous = previous
         with lock:  # held until everything is written: a second run into this folder is refused meanwhile
             try:
                 return self._run(out_dir)
             finally:
-                # The earlier run's files (`--overwrite`) go only once this run's are written whole; else
-                # (stopped before its first frame, results rescued elsewhere) they come back.
+                # The earlier run's files (`--overwrite`) go only once this run's are written whole in their
+                # place; else (stopped before its first frame or before its last, results rescued elsewhere)
+                # they come back.
                 if previous is not None and self._written:
                     previous.discard()
                 elif previous is not None:
@@ -207,7 +210,11 @@ class Pipeline:
                 result.metrics.get("interrupted_by") or signals.caught or "SIGINT"
             )
         if stopped_by is not None:
-            where = f"written to {out_dir}" if out_dir is not None else "returned in the exception's `result`"
+            where = "returned in the exception's `result`"
+            if result.out_dir is not None:
+                where = f"written to {result.out_dir}"
+            if out_dir is not None and result.out_dir != out_dir:
+                where += f" (the earlier results in {out_dir} are kept)"
             error = DatasetError(
                 f"{stopped_by} — stopped there; the results of the {len(record)} frames before it are {where}"
             )
@@ -288,7 +295,12 @@ class Pipeline:
         """Correct the map, assemble the trajectories, evaluate, and write the results folder. A signal
         stops the correction at its last accepted step (the map is then part-corrected, and says so);
         while the files are written it waits (`_Signals`)."""
-        from hippo_nav.pipeline.results import ResultsNotWrittenError, evaluate, write_results
+        from hippo_nav.pipeline.results import (
+            ResultsNotWrittenError,
+            evaluate,
+            stopped_run_folder,
+            write_results,
+        )
 
         clock = time.perf_counter()
         try:
@@ -332,10 +344,22 @@ class Pipeline:
         if out_dir is not None:
             frontend = resolved_frontend_params(self.odometry, self.system.view_cells)
             memory = self._memory_to_save(result) if self.config.output.save_map else None
+            target = Path(out_dir)
+            if interrupted and self._previous is not None and self._previous.holds_results():
+                # Stopped before its last frame (an unreadable frame, a signal) with `--overwrite`: a part
+                # of a run never replaces the whole earlier one. Its results go beside the folder, and the
+                # earlier run's files come back (`run`).
+                target = stopped_run_folder(target)
+                log.warning(
+                    "the run stopped before its last frame: its results go to %s, and the earlier results in "
+                    "%s are kept (--overwrite replaces them only with a run that reaches its end)",
+                    target,
+                    out_dir,
+                )
             try:
                 write_results(
                     result,
-                    Path(out_dir),
+                    target,
                     self.config,
                     frontend,
                     self.system.map,
@@ -346,7 +370,7 @@ class Pipeline:
             except ResultsNotWrittenError as err:
                 err.result = result  # type: ignore[attr-defined]
                 raise
-            self._written = True
+            self._written = target == Path(out_dir)
         if signals.caught is not None and not result.interrupted:
             # Every frame was processed, but a signal came during the correction or the writing.
             result.metrics["interrupted_by"] = signals.caught

@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from hippo_nav._core import HippoNavError
 from hippo_nav.geometry import lift_planar, se2_compose
 from hippo_nav.memory import SavedMemory
 from hippo_nav.metrics import ate_errors
@@ -131,7 +132,14 @@ def sessions_metrics(
         return out
     truth_poses = np.tile(np.eye(4), (len(truth), 1, 1))
     truth_poses[:, :3, 3] = truth
-    errors = ate_errors(truth_poses[placed], track.world_from_camera()[placed], planar=True, align="se3")
+    try:
+        errors = ate_errors(truth_poses[placed], track.world_from_camera()[placed], planar=True, align="se3")
+    except HippoNavError as err:
+        # No alignment (e.g. no frame placed, or every one at the same point: a session that never moved):
+        # unscored, as a trajectory's errors are — never a run's results lost over a score.
+        log.warning("the sessions' errors are unavailable: %s", err)
+        out["unscored"] = str(err)
+        return out
     out["ate_2d_m"] = float(np.sqrt(np.mean(errors**2)))
     # The earlier sessions' frames alone, in the alignment of all of them.
     earlier = (np.arange(len(truth)) < track.earlier_frames)[placed]

@@ -121,6 +121,7 @@ class Recording:
         if header.get("format") != _FORMAT:
             raise RecordingError(f"{path}: format {header.get('format')!r}, expected {_FORMAT!r}")
         names = [k.split("/", 1)[1] for k in arrays if k.startswith("rates/")]
+        _check_shapes(path, arrays, names)
         return cls(
             time_s=arrays["time_s"],
             position_m=arrays["position_m"],
@@ -135,3 +136,44 @@ class Recording:
             lesioned=tuple(bool(b) for b in header["lesioned"]),
             metadata=dict(header["metadata"]),
         )
+
+
+_PER_SAMPLE = {  # array: its columns (0: one value a sample)
+    "time_s": 0,
+    "position_m": 2,
+    "heading_rad": 0,
+    "speed_m_s": 0,
+    "decoded_position_m": 2,
+    "decoded_heading_rad": 0,
+}
+
+
+def _check_shapes(path: Path, arrays: dict[str, np.ndarray], populations: list[str]) -> None:
+    """Every array of a loaded recording of the shape the others imply (one row a sample, one phase a unit):
+    a file whose arrays disagree (edited, or joined from two runs) is a `RecordingError` naming the array,
+    not a failure deep inside a figure."""
+
+    def refuse(what: str) -> RecordingError:
+        return RecordingError(
+            f"{path}: {what}; write the recording again (`hippo-nav run` or `hippo-nav record`)"
+        )
+
+    missing = [name for name in _PER_SAMPLE if name not in arrays]
+    missing += [f"phase/{name}" for name in populations if f"phase/{name}" not in arrays]
+    if missing:
+        raise refuse(f"no {', '.join(missing)} array")
+    samples = arrays["time_s"].shape[0] if arrays["time_s"].ndim == 1 else -1
+    if samples < 0:
+        raise refuse(f"time_s has shape {arrays['time_s'].shape}, not one time a sample")
+    for name, columns in _PER_SAMPLE.items():
+        expected = (samples,) if columns == 0 else (samples, columns)
+        if arrays[name].shape != expected:
+            raise refuse(f"{name} has shape {arrays[name].shape}, expected {expected} ({samples} samples)")
+    for name in populations:
+        rates, phases = arrays[f"rates/{name}"], arrays[f"phase/{name}"]
+        if rates.ndim != 2 or rates.shape[0] != samples:
+            raise refuse(f"rates/{name} has shape {rates.shape}, expected ({samples}, units)")
+        if phases.ndim == 0 or phases.shape[0] != rates.shape[1]:
+            raise refuse(
+                f"phase/{name} has shape {phases.shape}, expected one phase for each of {rates.shape[1]} units"
+            )

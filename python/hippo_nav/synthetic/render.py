@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hippo_nav.datasets.common import read_image_file
+from hippo_nav.datasets.common import image_size_in_header, read_image_file
 from hippo_nav.io.atomic import open_atomic, write_image, write_text
 from hippo_nav.io.errors import DatasetError
 from hippo_nav.io.poses import write_kitti_poses
@@ -184,7 +184,11 @@ def render_sequence(
     write_frame = _StereoFrameWriter(
         world, model, poses, p0[:, :3], (width, height), baseline_m, seed, noise_std, sequence_dir
     )
-    todo = [int(i) for i in selected if not (keep_existing and _frame_on_disk(sequence_dir, int(i)))]
+    todo = [
+        int(i)
+        for i in selected
+        if not (keep_existing and _frame_on_disk(sequence_dir, int(i), (width, height)))
+    ]
     _render_frames(write_frame, todo, len(selected), f"rendering {sequence}", workers, progress)
     return root
 
@@ -249,9 +253,21 @@ def _write_sequence_files(
     return sequence_dir
 
 
-def _frame_on_disk(sequence_dir: Path, i: int) -> bool:
-    """Both images of frame `i` exist (a frame on disk is complete: images are written atomically)."""
-    return all((sequence_dir / camera / f"{i:06d}.png").is_file() for camera in ("image_0", "image_1"))
+_PNG_END = b"IEND\xaeB`\x82"  # the last chunk of every PNG file, with its checksum
+
+
+def _frame_on_disk(sequence_dir: Path, i: int, size_px: tuple[int, int]) -> bool:
+    """Both images of frame `i` are whole PNGs of this render's size. The render writes them atomically,
+    but a file emptied or cut short since (a full disk, a copy that stopped) is rendered again, not kept."""
+    for camera in ("image_0", "image_1"):
+        path = sequence_dir / camera / f"{i:06d}.png"
+        try:
+            data = path.read_bytes() if path.is_file() else b""
+        except OSError:
+            return False
+        if image_size_in_header(data) != size_px or not data.endswith(_PNG_END):
+            return False
+    return True
 
 
 class _StereoFrameWriter:

@@ -330,6 +330,7 @@ class MotionLimiter:
         # `max_gap_s` is per sequence frame: a run of every 20th frame of a 10 Hz sequence has 2 s between
         # its frames, which is no gap (unscaled, every frame was flagged and its motion squeezed into 1 s).
         self.max_gap_s = limits.max_gap_s * max(int(stride), 1)
+        self._clamping = False  # the last frame was clamped: a stretch of them is said once, at its start
 
     def drive(
         self,
@@ -354,9 +355,22 @@ class MotionLimiter:
         yaw_rate = yaw_rad / dt_s
         speed = float(np.copysign(np.hypot(forward_m, left_m), forward_m)) / dt_s
         if abs(speed) > limits.max_speed_m_s or abs(yaw_rate) > limits.max_yaw_rate_rad_s:
+            if not self._clamping:
+                log.warning(
+                    "motion of %.4g m/s and %.4g rad/s is beyond the networks' limits (%.4g m/s, %.4g rad/s): "
+                    "clamped from here until it is plausible again (frames.csv flags each frame 'clamped'); "
+                    "check the odometry (its units, its frame rate, a jump)",
+                    speed,
+                    yaw_rate,
+                    limits.max_speed_m_s,
+                    limits.max_yaw_rate_rad_s,
+                )
+            self._clamping = True
             speed = float(np.clip(speed, -limits.max_speed_m_s, limits.max_speed_m_s))
             yaw_rate = float(np.clip(yaw_rate, -limits.max_yaw_rate_rad_s, limits.max_yaw_rate_rad_s))
             flag = "clamped"
+        else:
+            self._clamping = False
         try:
             return engine.step(yaw_rate, speed, dt_s, view), Motion(yaw_rate, speed, flag)
         except HippoNavError as err:
