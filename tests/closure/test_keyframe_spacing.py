@@ -9,6 +9,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from hippo_nav._core import HippoNavError
 from hippo_nav.closure import ClosureConfig, Keyframe, KeyframeStore
 from hippo_nav.io import write_kitti_poses
 from hippo_nav.pipeline import Pipeline, config_from_dict
@@ -105,6 +106,12 @@ def test_the_spacing_outlives_a_saved_memory_and_a_new_session_keyframes_from_it
     older.restore_state({k: v for k, v in saved.items() if k != "last_keyframe_odometer_m"})
     _new_vertex(older, 3, 9.0)
     assert extractions.frames == [3]
+    # A NaN point (a memory edited with its checksums recomputed) is refused: it would become a NaN closure.
+    damaged = dict(saved)
+    damaged["points_m"] = saved["points_m"].copy()
+    damaged["points_m"][0, 2] = np.nan
+    with pytest.raises(HippoNavError, match="points_m holds NaN"):
+        _store(5.0)[0].restore_state(damaged)
 
 
 @pytest.mark.slow

@@ -229,6 +229,31 @@ def test_a_damaged_memory_is_one_clear_error_and_overwrites_nothing(first_lap, t
 
 
 @pytest.mark.parametrize(
+    ("file", "key", "says"),
+    [
+        ("views", "recall.offset", "view recall's offset holds NaN"),
+        ("keyframes", "points_m", "keyframes' points_m holds NaN"),
+    ],
+)
+def test_a_memory_edited_to_hold_nan_is_refused_naming_it(first_lap, tmp_path, file, key, says):
+    # Checksums recomputed (a hand-edited or foreign memory): the NaN is named as the memory's, not met later
+    # as input the networks refuse, blamed on the odometry, or copied into the next memory.
+    memory = read_memory(first_lap)
+    arrays = getattr(memory, file)
+    arrays[key] = np.asarray(arrays[key]).astype(np.float64 if file == "views" else np.float32)
+    arrays[key].flat[0] = np.nan
+    write_memory(memory, tmp_path / "edited" / "memory")
+    with pytest.raises(SavedMemoryError, match=says):
+        run(
+            tmp_path / "out",
+            config=config_from_dict(QUIET),
+            progress=False,
+            stop=5,
+            memory_from=tmp_path / "edited",
+        )
+
+
+@pytest.mark.parametrize(
     ("override", "names"),
     [
         ({"view_words": {"orb_features": 400}}, "view_cells.orb_features"),

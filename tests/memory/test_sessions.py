@@ -142,8 +142,9 @@ def test_the_lost_stretch_is_tied_to_the_loaded_map_where_it_passed_known_ground
         lambda path: path.update(vertex_from_agent=path["vertex_from_agent"][:, :2]),
         lambda path: path.update(session=np.array(["a"] * len(path["session"]))),
         lambda path: path.update(vertex=path["vertex"] + 10**6),  # vertices the map does not have
+        lambda path: path["vertex_from_agent"].__setitem__((3, 0), np.nan),
     ],
-    ids=["missing", "short", "columns", "text", "unknown_vertices"],
+    ids=["missing", "short", "columns", "text", "unknown_vertices", "nan"],
 )
 def test_a_damaged_path_costs_the_earlier_frames_never_the_run(day_one, demo, tmp_path, damage):
     """`path.npz` that passed its checksum but holds the wrong arrays (a foreign or hand-edited memory): the

@@ -41,6 +41,10 @@ def test_a_bad_results_folder_is_refused_before_any_frame(tmp_path, capsys):
         (a_file, "is a file"),
         (a_file / "below", "a part of that path is a file"),
         ("", "empty"),
+        (
+            "/proc/hippo_nav_results",
+            "results folder /proc/hippo_nav_results cannot be created",
+        ),  # no folders there
     ):
         assert main([*base, "--out", str(out)]) == 2
         assert phrase in _one_line_error(capsys)

@@ -296,6 +296,12 @@ class KeyframeStore:
             )
         if len(parts) != len(saved["vertex"]):
             raise HippoNavError("saved keyframes are inconsistent: one count per vertex is needed")
+        for name in ("pixels_px", "points_m"):
+            if not np.isfinite(np.asarray(saved[name], np.float64)).all():
+                # Every keyframe this package saves is finite: a NaN would become a NaN closure later on.
+                raise HippoNavError(
+                    f"the saved keyframes' {name} holds NaN or infinity; the memory is damaged"
+                )
         self.keyframes = {
             int(vertex): Keyframe(
                 np.ascontiguousarray(px, np.float32),

@@ -124,6 +124,10 @@ def prepare_results_folder(
         ) from None
     except PermissionError:
         raise HippoNavError(f"results folder {path} cannot be created here (permission denied)") from None
+    except OSError as err:  # a file system that takes no folders there (/proc, a full or read-only disk)
+        raise HippoNavError(
+            f"results folder {path} cannot be created ({os_error_words(err)}); choose another --out"
+        ) from None
     try:
         with tempfile.NamedTemporaryFile(dir=path, prefix=".write-check-"):
             pass

@@ -59,6 +59,8 @@ def _loaded_path(memory: SavedMemory | None) -> dict[str, np.ndarray] | None:
             shape_ok = array.shape == ((n,) if columns == 1 else (n, columns))
             if not shape_ok or not (np.issubdtype(array.dtype, np.number) and array.dtype != np.complex128):
                 raise ValueError(f"{name}: {array.dtype} {array.shape}")
+            if not np.isfinite(array).all():
+                raise ValueError(f"{name} holds NaN or infinity")
     except (KeyError, ValueError, IndexError, TypeError) as err:
         log.warning(
             "the loaded memory's path.npz is not usable (%s); earlier sessions are not re-placed", err

@@ -275,6 +275,13 @@ class ViewRecall:
 
     def restore_state(self, saved: dict[str, np.ndarray], *, resume: bool) -> None:
         """Take the state of `export_state`; with `resume` also where the agent was (else: no active cell)."""
+        for name in ("offset", "made_at_m"):  # (stored values are NaN where a module was lesioned)
+            if not np.isfinite(np.asarray(saved[name], np.float64)).all():
+                # What this package saves is finite; a NaN here would surface later as "not finite" input
+                # to the networks, blamed on the odometry.
+                raise HippoNavError(
+                    f"the saved view recall's {name} holds NaN or infinity; the memory is damaged"
+                )
         sizes = [int(v) for v in saved["stored_sizes"]]
         self.stored = {
             int(c): CompactView(values, sizes[0], sizes[1], sizes[2:])
