@@ -130,6 +130,19 @@ def test_an_overwrite_that_stops_mid_run_keeps_the_run_a_killed_overwrite_set_as
     assert len(list(first_run.parent.glob(f"{first_run.name}.stopped-*"))) == 1
 
 
+def test_an_overwrite_that_stops_mid_run_replaces_an_earlier_part_in_place(demo, tmp_path, monkeypatch):
+    """The earlier results are themselves a stopped run's (a sweep's interrupted attempt, retried): no whole
+    run to keep, so the new part replaces the old one where it was asked for."""
+    monkeypatch.setattr(
+        "hippo_nav.pipeline.runner.open_input", lambda *a, **k: Frames(demo, FRAMES, on_load=_corrupt_frame_5)
+    )
+    out = tmp_path / "attempts"
+    assert main(["run", "--no-progress", "--no-figures", "--out", str(out)]) == 2
+    assert main(["run", "--no-progress", "--no-figures", "--out", str(out), "--overwrite"]) == 2
+    assert json.loads((out / "metrics.json").read_text())["interrupted"]
+    assert not list(tmp_path.glob("attempts.stopped-*")) and not (out / PREVIOUS_RESULTS).exists()
+
+
 def test_an_overwrite_that_stops_mid_run_in_a_folder_without_an_earlier_run_writes_there(
     demo, tmp_path, monkeypatch
 ):

@@ -241,9 +241,17 @@ class PreviousResults:
             ) from None
         return previous
 
-    def holds_results(self) -> bool:
-        """An earlier run's files are set aside (not an empty folder, nor nothing set aside)."""
-        return self.aside.is_dir() and not self.aside.is_symlink() and any(self.aside.iterdir())
+    def holds_whole_run(self) -> bool:
+        """The files set aside are a whole run's: some are, and their metrics.json does not say the run
+        stopped before its last frame (a sweep's retry replaces its interrupted attempt in place). A
+        metrics.json that cannot be read counts as whole: what cannot be judged is kept."""
+        if not self.aside.is_dir() or self.aside.is_symlink() or not any(self.aside.iterdir()):
+            return False
+        try:
+            metrics = json.loads((self.aside / "metrics.json").read_text())
+        except (OSError, ValueError):
+            return True
+        return not (isinstance(metrics, dict) and metrics.get("interrupted") is True)
 
     def discard(self) -> None:
         """The new results are written whole: the earlier ones go."""

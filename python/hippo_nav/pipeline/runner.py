@@ -345,7 +345,7 @@ class Pipeline:
             frontend = resolved_frontend_params(self.odometry, self.system.view_cells)
             memory = self._memory_to_save(result) if self.config.output.save_map else None
             target = Path(out_dir)
-            if interrupted and self._previous is not None and self._previous.holds_results():
+            if interrupted and self._previous is not None and self._previous.holds_whole_run():
                 # Stopped before its last frame (an unreadable frame, a signal) with `--overwrite`: a part
                 # of a run never replaces the whole earlier one. Its results go beside the folder, and the
                 # earlier run's files come back (`run`).
