@@ -229,6 +229,29 @@ def test_bad_configs_and_views_raise_clear_errors(settled: SpatialMemory):
     bad[3, 3] = np.nan
     with pytest.raises(hippo_nav.HippoNavError, match="NaN"):
         settled.step(0.0, 0.0, 0.1, ViewPatterns(hd_profile=good.hd_profile, grid_layer2=[bad, None, None]))
+    # A view 1e40 strong overflowed f32 and left every later step failing, blamed on the velocity: refused, the
+    # networks as they were.
+    before = settled.readout()
+    strong = ViewPatterns(hd_profile=good.hd_profile, grid_layer2=good.grid_layer2, strength=1e40)
+    with pytest.raises(hippo_nav.HippoNavError, match="view strength.*must lie in"):
+        settled.step(0.0, 1.0, 0.1, strong)
+    assert settled.readout() == before
+    settled.step(0.0, 1.0, 0.1)
+    # Gains a typo made absurd are refused by the config model and by the engine alike.
+    with pytest.raises(ValueError, match="hd.j1"):
+        EngineConfig.model_validate({"hd": {"j1": 1e300}})
+    absurd = default.model_copy(update={"hd": default.hd.model_copy(update={"j1": 1e300})})
+    with pytest.raises(hippo_nav.HippoNavError, match="engine.hd.j1 = "):
+        SpatialMemory(absurd)
+
+
+def test_the_fusion_refuses_a_prior_or_a_width_it_cannot_use():
+    one = [((0.1, 0.2), (0.3, 0.3))]
+    two = [((0.1, 0.2), (0.3, 0.3)), ((3.0, 3.0), (0.3, 0.3))]
+    with pytest.raises(hippo_nav.HippoNavError, match="prior"):
+        fuse_modules([two, one, two], (math.nan, math.nan))
+    with pytest.raises(hippo_nav.HippoNavError, match="at least 1e-12 rad"):
+        fuse_modules([[((0.1, 0.2), (1e-160, 1e-160))], one, one])  # its precision overflowed: NaN
 
 
 # --- compact stored views -------------------------------------------------------------------------------

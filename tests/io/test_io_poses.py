@@ -127,6 +127,22 @@ def test_writers_reject_bad_arrays(tmp_path: Path) -> None:
         write_kitti_poses(tmp_path / "x.txt", poses)
     with pytest.raises(DatasetError, match="timestamps for"):
         write_tum(tmp_path / "x.txt", np.zeros(3), random_poses(2))
+    # What the readers refuse is not written (TUM wrote a reflection, a zero block or 3·I as the identity).
+    for block in (np.diag([-1.0, 1.0, 1.0]), np.zeros((3, 3)), 3.0 * np.eye(3)):
+        poses = random_poses(2)
+        poses[1, :3, :3] = block
+        for write in (
+            lambda p: write_kitti_poses(tmp_path / "x.txt", p),
+            lambda p: write_tum(tmp_path / "x.txt", [0.0, 1.0], p),
+        ):
+            with pytest.raises(DatasetError, match="pose #1 is not .* a proper rotation"):
+                write(poses)
+    far = random_poses(2)
+    far[0, 2, 3] = 2e9
+    with pytest.raises(DatasetError, match="pose #0 lies more than"):
+        write_kitti_poses(tmp_path / "x.txt", far)
+    with pytest.raises(DatasetError, match="no poses to write"):
+        write_kitti_poses(tmp_path / "x.txt", np.zeros((0, 4, 4)))
 
 
 @pytest.mark.data

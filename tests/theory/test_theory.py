@@ -319,3 +319,19 @@ def test_bad_inputs_say_what_to_fix():
         field_near(x, gaussian_pdf(x, 0.0, 1.0), 0.0)
     with pytest.raises(HippoNavError, match="strictly increasing"):
         moments([0.0, 0.0, 1.0], [1.0, 1.0, 1.0])
+
+
+def test_inputs_too_large_to_compute_are_refused_up_front():
+    # Before: 30 modules listed 2^30 subsets (no end), three fine modules built 10^9 bump combinations (all the
+    # memory), and a bump 10^299 spacings wide asked numpy for an array beyond any machine.
+    from hippo_nav.theory.fusion import product_of_modules
+    from hippo_nav.theory.lesions import predicted_lesion_order
+
+    with pytest.raises(HippoNavError, match="2\\^30 subsets"):
+        predicted_lesion_order([0.1 * (i + 1) for i in range(30)])
+    assert len(predicted_lesion_order([0.1, 0.2, 0.3])) == 7
+    fine = [GridModule(0.01, 0.001), GridModule(0.011, 0.001), GridModule(0.013, 0.001)]
+    with pytest.raises(HippoNavError, match="bump combinations.*narrow the window"):
+        product_of_modules(fine, 0.0, 10.0)
+    with pytest.raises(HippoNavError, match="times spacing_m"):
+        GridModule(1e-300, 0.1).profile([0.0])

@@ -1,6 +1,40 @@
 //! Parameter and input validation shared by the networks.
 use crate::error::{AttractorError, Result};
 
+/// The largest interaction strength, inhibition or input amplitude (|J|, I) a network takes: the defaults
+/// are up to 6 000; far beyond, a typo (1e300) validated and left the networks without a bump or NaN.
+pub const MAX_GAIN: f64 = 1.0e6;
+/// The largest velocity half-range or tuning width (neural units; the defaults 0.03–0.1, 1 for the open field).
+pub const MAX_NU: f64 = 10.0;
+/// The largest velocity tuning spread λ of the weights (the defaults about 8 and 13).
+pub const MAX_LAMBDA: f64 = 1.0e4;
+
+/// `value` finite and at most `max` (with another check for its lower end).
+pub fn at_most(name: &'static str, value: f64, max: f64) -> Result<()> {
+    if value.is_finite() && value <= max {
+        Ok(())
+    } else {
+        Err(AttractorError::BadParameter {
+            name: name.into(),
+            value: value.to_string(),
+            why: format!("must be finite and ≤ {max}"),
+        })
+    }
+}
+
+/// `value` finite and at least `min` (with another check for its upper end).
+pub fn at_least(name: &'static str, value: f64, min: f64) -> Result<()> {
+    if value.is_finite() && value >= min {
+        Ok(())
+    } else {
+        Err(AttractorError::BadParameter {
+            name: name.into(),
+            value: value.to_string(),
+            why: format!("must be finite and ≥ {min}"),
+        })
+    }
+}
+
 pub fn positive(name: &'static str, value: f64) -> Result<()> {
     if value.is_finite() && value > 0.0 {
         Ok(())
@@ -9,18 +43,6 @@ pub fn positive(name: &'static str, value: f64) -> Result<()> {
             name: name.into(),
             value: value.to_string(),
             why: "must be finite and > 0".into(),
-        })
-    }
-}
-
-pub fn non_negative(name: &'static str, value: f64) -> Result<()> {
-    if value.is_finite() && value >= 0.0 {
-        Ok(())
-    } else {
-        Err(AttractorError::BadParameter {
-            name: name.into(),
-            value: value.to_string(),
-            why: "must be finite and ≥ 0".into(),
         })
     }
 }

@@ -28,6 +28,9 @@ pub struct FusedEstimate {
     pub std_rad: [f64; 2],
 }
 
+/// The narrowest bump the fusion takes (rad): a unit is about 0.1 rad wide on the default torus.
+pub const MIN_BUMP_STD_RAD: f64 = 1e-12;
+
 /// Fuse one bump per module. `bumps[0]` is the reference (the coarsest module present).
 pub fn fuse_bumps(bumps: &[Bump2]) -> Result<FusedEstimate> {
     let reference = bumps.first().ok_or(AttractorError::NothingToFuse)?;
@@ -38,9 +41,10 @@ pub fn fuse_bumps(bumps: &[Bump2]) -> Result<FusedEstimate> {
         let mut weighted_offset = 0.0;
         for b in bumps {
             let s = b.std_rad[axis];
-            if !(s.is_finite() && s > 0.0 && b.mean_rad[axis].is_finite()) {
+            // Narrower than MIN_BUMP_STD_RAD its precision 1/σ² overflows (σ = 1e-160 fused to NaN).
+            if !(s.is_finite() && s >= MIN_BUMP_STD_RAD && b.mean_rad[axis].is_finite()) {
                 return Err(AttractorError::BadBump(format!(
-                    "bump with centre {:?} and std {:?}: std must be positive and finite",
+                    "bump with centre {:?} and std {:?}: std must be finite and at least {MIN_BUMP_STD_RAD:e} rad",
                     b.mean_rad, b.std_rad
                 )));
             }
@@ -66,6 +70,13 @@ pub fn fuse_homocentric(
     modules: &[&[Bump2]],
     prior: Option<[f64; 2]>,
 ) -> Result<(FusedEstimate, Vec<Bump2>)> {
+    if let Some(p) = prior {
+        if !(p[0].is_finite() && p[1].is_finite()) {
+            return Err(AttractorError::BadBump(format!(
+                "prior {p:?}: the previous estimate must be finite (or None)"
+            )));
+        }
+    }
     let mut chosen: Vec<Bump2> = Vec::with_capacity(modules.len());
     for bumps in modules.iter().filter(|b| !b.is_empty()) {
         let pick = if chosen.is_empty() {

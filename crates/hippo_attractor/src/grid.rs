@@ -97,12 +97,18 @@ impl GridParams {
         check::size("grid.n_theta", self.n_theta, 4, 1024)?;
         check::size("grid.n_nu", self.n_nu, 1, 64)?;
         check::positive("grid.nu_max", self.nu_max)?;
+        check::at_most("grid.nu_max", self.nu_max, check::MAX_NU)?;
         check::positive("grid.lambda", self.lambda)?;
+        check::at_most("grid.lambda", self.lambda, check::MAX_LAMBDA)?;
         check::non_positive("grid.j0", self.j0)?;
+        check::at_least("grid.j0", self.j0, -check::MAX_GAIN)?;
         check::positive("grid.jk", self.jk)?;
+        check::at_most("grid.jk", self.jk, check::MAX_GAIN)?;
         check::positive("grid.input_amp", self.input_amp)?;
+        check::at_most("grid.input_amp", self.input_amp, check::MAX_GAIN)?;
         check::in_unit_interval("grid.input_tuning", self.input_tuning)?;
         check::positive("grid.input_sigma", self.input_sigma)?;
+        check::at_most("grid.input_sigma", self.input_sigma, check::MAX_NU)?;
         check::in_unit_interval("grid.pin_gain", self.pin_gain)?;
         check::size(
             "grid.units (n_theta² · n_nu²)",

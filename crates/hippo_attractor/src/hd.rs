@@ -70,12 +70,18 @@ impl HdParams {
         check::size("hd.n_nu", self.n_nu, 1, 1024)?;
         check::size("hd.units (n_theta · n_nu)", self.n_units(), 1, MAX_HD_UNITS)?;
         check::positive("hd.nu_max", self.nu_max)?;
+        check::at_most("hd.nu_max", self.nu_max, check::MAX_NU)?;
         check::positive("hd.lambda", self.lambda)?;
+        check::at_most("hd.lambda", self.lambda, check::MAX_LAMBDA)?;
         check::non_positive("hd.j0", self.j0)?;
+        check::at_least("hd.j0", self.j0, -check::MAX_GAIN)?;
         check::positive("hd.j1", self.j1)?;
+        check::at_most("hd.j1", self.j1, check::MAX_GAIN)?;
         check::positive("hd.input_amp", self.input_amp)?;
+        check::at_most("hd.input_amp", self.input_amp, check::MAX_GAIN)?;
         check::in_unit_interval("hd.input_tuning", self.input_tuning)?;
         check::positive("hd.input_sigma", self.input_sigma)?;
+        check::at_most("hd.input_sigma", self.input_sigma, check::MAX_NU)?;
         check::in_unit_interval("hd.pin_gain", self.pin_gain)?;
         Ok(())
     }

@@ -44,8 +44,11 @@ impl PlaceParams {
     pub fn validate(&self) -> Result<()> {
         check::size("place.n_theta", self.n_theta, 4, 4096)?;
         check::non_positive("place.j0", self.j0)?;
+        check::at_least("place.j0", self.j0, -check::MAX_GAIN)?;
         check::positive("place.j1", self.j1)?;
+        check::at_most("place.j1", self.j1, check::MAX_GAIN)?;
         check::positive("place.input_amp", self.input_amp)?;
+        check::at_most("place.input_amp", self.input_amp, check::MAX_GAIN)?;
         Ok(())
     }
 }

@@ -26,6 +26,8 @@ use std::f64::consts::TAU;
 
 /// Number of grid modules (wave numbers 1, 2, 4 by default; index 0 is the coarsest, "ventral").
 pub const N_MODULES: usize = 3;
+/// The strongest view injection (the pipeline's `view_injection.initial_strength` is at most this).
+pub const MAX_VIEW_STRENGTH: f64 = 1.0e3;
 
 /// Parameters of the whole network; `Default` is the single source of every default.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -390,8 +392,10 @@ impl<T: Real> SpatialMemory<T> {
     fn check_view(&self, v: &ViewInjection<T>) -> Result<()> {
         check::input("view strength", v.strength)?;
         // A negative strength would inject the stored state inverted: the heading flips by π and the
-        // place code is pushed away from the stored place.
-        check::non_negative("view strength", v.strength)?;
+        // place code is pushed away from the stored place. Above MAX_VIEW_STRENGTH (the config's bound on
+        // `view_injection.initial_strength`) the injected activity overflows f32 and the networks are NaN
+        // from then on.
+        check::in_range("view strength", v.strength, 0.0, MAX_VIEW_STRENGTH)?;
         let nt = self.params.hd.n_theta;
         check::array_len(
             "view hd_profile",

@@ -26,6 +26,16 @@ pub enum MapError {
         /// Its value.
         value: f64,
     },
+    /// A finite pose whose position lies beyond any map ([`crate::graph::MAX_COORDINATE_M`]).
+    #[error("{what} lies {value:e} m away, beyond any map (at most {limit:e} m); check the units and the upstream odometry")]
+    TooFar {
+        /// What was too far.
+        what: &'static str,
+        /// The coordinate.
+        value: f64,
+        /// The bound.
+        limit: f64,
+    },
     /// A parameter outside its range (the shape every core crate uses for parameter errors).
     #[error("invalid parameter `{name}` = {value}: {why}")]
     BadParameter {

@@ -203,10 +203,24 @@ impl PoseGraph {
     }
 }
 
+/// The largest coordinate a pose may have (m): a million kilometres. Beyond it a position is a unit or
+/// overflow error, not a place, and the correctors' squares lose every digit of the poses near the origin
+/// (a step of 1e200 m was taken, then made every later frame fail; relaxation set such graphs to zero).
+pub const MAX_COORDINATE_M: f64 = 1.0e9;
+
 pub(crate) fn check_pose(what: &'static str, pose: &Pose2) -> Result<()> {
     for value in [pose.x, pose.y, pose.yaw] {
         if !value.is_finite() {
             return Err(MapError::NonFinite { what, value });
+        }
+    }
+    for value in [pose.x, pose.y] {
+        if value.abs() > MAX_COORDINATE_M {
+            return Err(MapError::TooFar {
+                what,
+                value,
+                limit: MAX_COORDINATE_M,
+            });
         }
     }
     Ok(())

@@ -699,3 +699,32 @@ fn an_unjoined_session_survives_save_and_load() {
     empty.start_session();
     assert_eq!(empty.unjoined_from(), None);
 }
+
+#[test]
+fn a_step_beyond_any_map_is_refused_and_leaves_the_map_as_it_was() {
+    // A step of 1e200 m (odometry in the wrong units, an overflow) used to be taken: the map added a vertex
+    // with no link, moved the agent there, and every later frame failed.
+    let mut map = ExperienceMap::new(MapParams::default()).unwrap();
+    let frames = square_circuit(1, 0.0);
+    for input in &frames[..4] {
+        map.on_frame(input).unwrap();
+    }
+    let (vertices, links, odometer) = (map.vertices().len(), map.links().len(), map.odometer_m());
+    let agent = map.world_from_agent().unwrap();
+    let mut absurd = frames[4];
+    absurd.odometry_step = Pose2::new(1e200, 0.0, 0.0);
+    let err = map.on_frame(&absurd).unwrap_err().to_string();
+    assert!(
+        err.contains("beyond any map") && err.contains("units"),
+        "{err}"
+    );
+    assert_eq!(
+        (map.vertices().len(), map.links().len(), map.odometer_m()),
+        (vertices, links, odometer)
+    );
+    assert_eq!(map.world_from_agent().unwrap(), agent);
+    map.on_frame(&frames[4]).unwrap(); // the next good frame goes on
+                                       // The same bound on a vertex added directly and on a pose graph's vertices.
+    let mut graph = hippo_map::PoseGraph::new();
+    assert!(graph.add_vertex(Pose2::new(0.0, 2e9, 0.0)).is_err());
+}

@@ -80,6 +80,14 @@ def _d(*path: str | int) -> Any:
     return rust_default("engine", *path)
 
 
+# Upper bounds that keep a typo (1e300) from validating and then leaving the networks with no bump or NaN
+# activity: the defaults are gains up to 6 000, velocity half-ranges 0.06–0.1 (at most 1 for the open field)
+# and tuning spreads about 13.
+_MAX_GAIN = 1.0e6
+_MAX_NU = 10.0
+_MAX_LAMBDA = 1.0e4
+
+
 class HdConfig(_Section):
     """Head-direction-by-velocity ring (docs/spec.md §2)."""
 
@@ -88,16 +96,25 @@ class HdConfig(_Section):
         _d("hd", "n_nu"), ge=1, le=1024, description="units along the angular-velocity axis (Nν)"
     )
     nu_max: float = Field(
-        _d("hd", "nu_max"), gt=0.0, description="half-range L_r of the velocity axis (neural units)"
+        _d("hd", "nu_max"),
+        gt=0.0,
+        le=_MAX_NU,
+        description="half-range L_r of the velocity axis (neural units)",
     )
-    lambda_: float = Field(_d("hd", "lambda"), gt=0.0, alias="lambda", description="velocity tuning spread λ")
-    j0: float = Field(_d("hd", "j0"), le=0.0, description="uniform inhibition J0 ≤ 0")
-    j1: float = Field(_d("hd", "j1"), gt=0.0, description="interaction strength J1 > 0")
-    input_amp: float = Field(_d("hd", "input_amp"), gt=0.0, description="velocity input amplitude I_r")
+    lambda_: float = Field(
+        _d("hd", "lambda"), gt=0.0, le=_MAX_LAMBDA, alias="lambda", description="velocity tuning spread λ"
+    )
+    j0: float = Field(_d("hd", "j0"), ge=-_MAX_GAIN, le=0.0, description="uniform inhibition J0 ≤ 0")
+    j1: float = Field(_d("hd", "j1"), gt=0.0, le=_MAX_GAIN, description="interaction strength J1 > 0")
+    input_amp: float = Field(
+        _d("hd", "input_amp"), gt=0.0, le=_MAX_GAIN, description="velocity input amplitude I_r"
+    )
     input_tuning: float = Field(
         _d("hd", "input_tuning"), ge=0.0, le=1.0, description="velocity tuning strength ε_r in [0, 1]"
     )
-    input_sigma: float = Field(_d("hd", "input_sigma"), gt=0.0, description="velocity tuning width σ_r")
+    input_sigma: float = Field(
+        _d("hd", "input_sigma"), gt=0.0, le=_MAX_NU, description="velocity tuning width σ_r"
+    )
     pin_gain: float = Field(
         _d("hd", "pin_gain"),
         ge=0.0,
@@ -124,13 +141,15 @@ class GridConfig(_Section):
         ge=4, le=1024, description="units per torus axis (N; shared with the place torus, `place.n_theta`)"
     )
     n_nu: int = Field(ge=1, le=64, description="units per velocity axis (M)")
-    nu_max: float = Field(gt=0.0, description="half-range L_t of each velocity axis")
-    lambda_: float = Field(gt=0.0, alias="lambda", description="velocity tuning spread λ of the weights")
-    j0: float = Field(le=0.0, description="uniform inhibition J0 ≤ 0")
-    jk: float = Field(gt=0.0, description="interaction strength Jk > 0")
-    input_amp: float = Field(gt=0.0)
+    nu_max: float = Field(gt=0.0, le=_MAX_NU, description="half-range L_t of each velocity axis")
+    lambda_: float = Field(
+        gt=0.0, le=_MAX_LAMBDA, alias="lambda", description="velocity tuning spread λ of the weights"
+    )
+    j0: float = Field(ge=-_MAX_GAIN, le=0.0, description="uniform inhibition J0 ≤ 0")
+    jk: float = Field(gt=0.0, le=_MAX_GAIN, description="interaction strength Jk > 0")
+    input_amp: float = Field(gt=0.0, le=_MAX_GAIN)
     input_tuning: float = Field(ge=0.0, le=1.0)
-    input_sigma: float = Field(gt=0.0)
+    input_sigma: float = Field(gt=0.0, le=_MAX_NU)
     pin_gain: float = Field(ge=0.0, le=1.0)
 
     @model_validator(mode="after")
@@ -155,9 +174,9 @@ class PlaceConfig(_Section):
     n_theta: int = Field(
         _d("place", "n_theta"), ge=4, le=4096, description="units per torus axis (the grid modules' N)"
     )
-    j0: float = Field(_d("place", "j0"), le=0.0)
-    j1: float = Field(_d("place", "j1"), gt=0.0)
-    input_amp: float = Field(_d("place", "input_amp"), gt=0.0)
+    j0: float = Field(_d("place", "j0"), ge=-_MAX_GAIN, le=0.0)
+    j1: float = Field(_d("place", "j1"), gt=0.0, le=_MAX_GAIN)
+    input_amp: float = Field(_d("place", "input_amp"), gt=0.0, le=_MAX_GAIN)
 
 
 def _default_grid() -> list[GridConfig]:

@@ -116,11 +116,35 @@ def read_kitti_poses(path: str | Path) -> np.ndarray:
 
 
 def _validated_poses(world_from_camera: np.ndarray) -> np.ndarray:
+    """The poses to write, checked as the readers check them: a file written is a file that reads back (before,
+    a reflection or a zero block was written as something else, e.g. TUM's identity)."""
     poses = np.asarray(world_from_camera, dtype=np.float64)
     if poses.ndim != 3 or poses.shape[1:] not in ((4, 4), (3, 4)):
         raise DatasetError(f"poses must have shape (N, 4, 4) or (N, 3, 4), got {poses.shape}")
+    if len(poses) == 0:
+        raise DatasetError("no poses to write: a trajectory file holds at least one")
     if not np.all(np.isfinite(poses)):
         raise DatasetError("poses contain NaN or infinity; refusing to write them")
+    rotations = poses[:, :3, :3]
+    far = np.abs(poses[:, :3, 3]).max(axis=1) > MAX_COORDINATE_M
+    bad = (
+        np.abs(rotations).max(axis=(1, 2)) > 1.0 + ROTATION_TOLERANCE
+    )  # checked first: RᵀR of 1e200s overflows
+    gram = np.einsum("nji,njk->nik", rotations, rotations) - np.eye(3)
+    bad |= np.abs(np.where(bad[:, None, None], 0.0, gram)).max(axis=(1, 2)) > ROTATION_TOLERANCE
+    bad |= (
+        np.abs(np.linalg.det(np.where(bad[:, None, None], np.eye(3), rotations)) - 1.0) > ROTATION_TOLERANCE
+    )
+    if bad.any():
+        raise DatasetError(
+            f"pose #{int(np.argmax(bad))} is not [R | t] with R a proper rotation (RᵀR = I, det R = 1); "
+            "refusing to write it"
+        )
+    if far.any():
+        raise DatasetError(
+            f"pose #{int(np.argmax(far))} lies more than {MAX_COORDINATE_M:g} m from the origin along an axis; "
+            "positions are metres (refusing to write it)"
+        )
     return poses
 
 

@@ -101,6 +101,10 @@ class PosteriorMixture:
         return [GaussianProduct(float(self.scales[j]), float(self.means_m[j]), self.sigma_m) for j in order]
 
 
+MAX_COMBINATIONS = 2_000_000
+"""Bump combinations `product_of_modules` enumerates at most (about 50 MB for three modules)."""
+
+
 def product_of_modules(modules: Sequence[GridModule], lo_m: float, hi_m: float) -> PosteriorMixture:
     """Closed form of Π_m g_m(x) for x in [lo_m, hi_m], as the mixture of all bump combinations.
 
@@ -120,7 +124,19 @@ def product_of_modules(modules: Sequence[GridModule], lo_m: float, hi_m: float) 
     centres = []
     for module in modules:
         margin = 12.0 * module.bump_sigma_m + module.spacing_m
+        span = (hi_m - lo_m + 2.0 * margin) / module.spacing_m
+        if span > MAX_COMBINATIONS:
+            raise HippoNavError(
+                f"a module of spacing {module.spacing_m:g} m has about {span:.3g} bumps in the window "
+                f"[{lo_m:g}, {hi_m:g}] m; narrow the window or widen the spacing"
+            )
         centres.append(module.bump_centres_m(lo_m - margin, hi_m + margin))
+    count = math.prod(len(c) for c in centres)
+    if count > MAX_COMBINATIONS:
+        raise HippoNavError(
+            f"the product of these modules over [{lo_m:g}, {hi_m:g}] m has {count:.3g} bump combinations, "
+            f"more than {MAX_COMBINATIONS:g}; narrow the window (a few periods of the widest module)"
+        )
     combos = np.array(list(itertools.product(*centres)), dtype=np.float64)  # (combinations, modules)
     means_f = sigma_f**2 * (combos @ precisions)
     log_scales = (

@@ -53,6 +53,10 @@ def _two_or_more(sigmas_m: ArrayLike, name: str) -> NDArray[np.float64]:
     return values
 
 
+MAX_LESION_MODULES = 16
+"""Modules `predicted_lesion_order` takes at most (2^16 subsets, under a second)."""
+
+
 def predicted_lesion_order(sigmas_m: ArrayLike) -> dict[tuple[int, ...], float]:
     """Bayesian σ of the place field for every non-empty subset of active modules.
 
@@ -61,6 +65,11 @@ def predicted_lesion_order(sigmas_m: ArrayLike) -> dict[tuple[int, ...], float]:
     gives the predicted order of field widths.
     """
     sigmas = as_positive(sigmas_m, "sigmas_m")
+    if sigmas.size > MAX_LESION_MODULES:
+        raise HippoNavError(
+            f"predicted_lesion_order lists every subset of the modules: {sigmas.size} modules are 2^{sigmas.size} "
+            f"subsets; give at most {MAX_LESION_MODULES} (the paper has 3)"
+        )
     indices = range(sigmas.size)
     return {
         subset: fused_sigma(sigmas[list(subset)])

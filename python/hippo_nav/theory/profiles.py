@@ -23,6 +23,7 @@ from hippo_nav._core import HippoNavError
 
 # Images of a bump further than this many σ away contribute < exp(−72) of the peak: below f64 resolution.
 _IMAGE_REACH_SIGMAS = 12.0
+_MAX_SIGMA_PER_SPACING = 1.0e4  # a profile sums about 24 × this many images at most
 
 
 def as_positions(positions_m: ArrayLike, name: str = "positions_m") -> NDArray[np.float64]:
@@ -103,6 +104,13 @@ def periodic_gaussian_profile(
     sigma = float(as_positive(bump_sigma_m, "bump_sigma_m")[0])
     spacing = float(as_positive(spacing_m, "spacing_m")[0])
     offset = np.mod(x - check_finite(peak_m, "peak_m"), spacing)
+    if sigma > _MAX_SIGMA_PER_SPACING * spacing:
+        # Bumps this much wider than their spacing overlap into a flat line (1/spacing to f64 precision), and
+        # summing their images would take more memory than the machine has.
+        raise HippoNavError(
+            f"bump_sigma_m = {sigma:g} is {sigma / spacing:.3g} times spacing_m = {spacing:g}; a grid profile "
+            f"needs σ ≤ {_MAX_SIGMA_PER_SPACING:g} spacings (the paper's modules: about 0.1–0.3)"
+        )
     reach = math.ceil(_IMAGE_REACH_SIGMAS * sigma / spacing) + 1
     images = spacing * np.arange(-reach, reach + 1, dtype=np.float64)
     z = (offset[:, None] - images[None, :]) / sigma
