@@ -108,3 +108,18 @@ def test_the_rust_map_composes_odometry_steps_as_the_python_frames_do():
     for step in steps:
         outcome = experience_map.on_frame(None, (0.0, 0.0), 0.0, tuple(step), 0.1)
     np.testing.assert_allclose(outcome.world_from_agent, se2_chain(steps)[-1], atol=1e-9)
+
+
+def test_planar_helpers_refuse_arrays_of_another_size():
+    # Before: a 4- or 5-vector was cut to its first three values without a word.
+    from hippo_nav._core import HippoNavError
+    from hippo_nav.geometry import pose_from_planar, se2_between, se2_compose, skew
+
+    for call in (
+        lambda: se2_compose([1.0, 2.0, 3.0, 4.0], [0.0, 0.0, 0.0]),
+        lambda: se2_between([0.0, 0.0, 0.0], [1.0, 2.0]),
+        lambda: pose_from_planar([1.0, 2.0, 3.0, 4.0, 5.0]),
+        lambda: skew([1.0, 2.0, 3.0, 4.0]),
+    ):
+        with pytest.raises(HippoNavError, match="must be \\(…, 3\\) arrays"):
+            call()

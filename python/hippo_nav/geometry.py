@@ -19,15 +19,26 @@ from __future__ import annotations
 
 import numpy as np
 
+from hippo_nav._core import HippoNavError
+
 
 def wrap_angle(angle_rad: np.ndarray | float) -> np.ndarray | float:
-    """`mod(a + π, 2π) − π`: the representative of an angle in [−π, π)."""
+    """`mod(a + π, 2π) − π`: the representative of an angle in [−π, π). (An angle a rounding error below −π
+    can round to +π: the two are the same direction.)"""
     return np.remainder(np.asarray(angle_rad) + np.pi, 2 * np.pi) - np.pi
+
+
+def _last_axis(values: np.ndarray | list[float] | tuple[float, ...], size: int, what: str) -> np.ndarray:
+    """`values` as float64 whose last axis holds `size` numbers (a longer one was silently cut before)."""
+    array = np.asarray(values, dtype=np.float64)
+    if array.ndim == 0 or array.shape[-1] != size:
+        raise HippoNavError(f"{what} must be (…, {size}) arrays, got shape {array.shape}")
+    return array
 
 
 def se2_compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a ⊕ b for (…, 3) arrays of (x, y, yaw); the yaw is wrapped."""
-    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    a, b = _last_axis(a, 3, "planar poses (x, y, yaw)"), _last_axis(b, 3, "planar poses (x, y, yaw)")
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
     x = a[..., 0] + c * b[..., 0] - s * b[..., 1]
     y = a[..., 1] + s * b[..., 0] + c * b[..., 1]
@@ -36,7 +47,7 @@ def se2_compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 def se2_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a⁻¹ ⊕ b (b seen from a) for (…, 3) arrays of (x, y, yaw); the yaw is wrapped."""
-    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    a, b = _last_axis(a, 3, "planar poses (x, y, yaw)"), _last_axis(b, 3, "planar poses (x, y, yaw)")
     c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
     dx, dy = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]
     return np.stack([c * dx + s * dy, -s * dx + c * dy, wrap_angle(b[..., 2] - a[..., 2])], axis=-1)
@@ -80,7 +91,7 @@ def yaw_rotation(yaw_rad: np.ndarray | float) -> np.ndarray:
 
 def pose_from_planar(xy_yaw: np.ndarray, height_m: np.ndarray | float = 0.0) -> np.ndarray:
     """(…, 4, 4) level camera poses at planar poses (forward, left, yaw), `height_m` above the origin."""
-    p = np.asarray(xy_yaw, dtype=np.float64)
+    p = _last_axis(xy_yaw, 3, "planar poses (forward, left, yaw)")
     poses = np.zeros(p.shape[:-1] + (4, 4))
     poses[..., :3, :3] = yaw_rotation(p[..., 2])
     poses[..., 0, 3] = -p[..., 1]
@@ -95,7 +106,7 @@ def lift_planar(xy_yaw: np.ndarray, reference_world_from_camera: np.ndarray) -> 
 
     The reference rotation splits as `R = R_yaw(ψ_ref) · R_tilt`; the result is `R_yaw(ψ) · R_tilt` at
     position (−left, y_ref, forward)."""
-    p = np.asarray(xy_yaw, dtype=np.float64)
+    p = _last_axis(xy_yaw, 3, "planar poses (forward, left, yaw)")
     ref = np.asarray(reference_world_from_camera, dtype=np.float64)
     ref_yaw = planar_from_pose(ref)[..., 2]
     tilt = np.swapaxes(yaw_rotation(ref_yaw), -1, -2) @ ref[..., :3, :3]
@@ -117,7 +128,7 @@ def planar_step(camera_prev_from_camera_cur: np.ndarray) -> tuple[float, float, 
 
 def skew(v: np.ndarray) -> np.ndarray:
     """(…, 3, 3) cross-product matrices [v]× of (…, 3) vectors: `skew(a) @ b == np.cross(a, b)`."""
-    v = np.asarray(v, dtype=np.float64)
+    v = _last_axis(v, 3, "vectors")
     s = np.zeros(v.shape[:-1] + (3, 3))
     s[..., 0, 1], s[..., 0, 2] = -v[..., 2], v[..., 1]
     s[..., 1, 0], s[..., 1, 2] = v[..., 2], -v[..., 0]

@@ -74,6 +74,8 @@ def umeyama_alignment(
     y = np.asarray(target, dtype=np.float64)
     if x.shape != y.shape or x.ndim != 2:
         raise DatasetError(f"point sets must both be (N, d), got {x.shape} and {y.shape}")
+    if len(x) == 0 or not (np.isfinite(x).all() and np.isfinite(y).all()):
+        raise DatasetError("point sets must hold at least one point, every coordinate finite")
     mean_x, mean_y = x.mean(0), y.mean(0)
     xc, yc = x - mean_x, y - mean_y
     variance_x = float((xc * xc).sum(1).mean())
@@ -141,7 +143,10 @@ def rigid_inverse(poses: np.ndarray) -> np.ndarray:
 def relative_pose_errors(gt: np.ndarray, est: np.ndarray, pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """For frame pairs (i, j): translation (m) and rotation (rad) of E = (Eᵢ⁻¹Eⱼ)⁻¹ (Gᵢ⁻¹Gⱼ)."""
     gt, est = _pair(gt, est)
-    pairs = np.asarray(pairs, dtype=np.int64).reshape(-1, 2)
+    given = np.asarray(pairs)
+    if given.size and not (np.issubdtype(given.dtype, np.integer) or np.array_equal(given, np.round(given))):
+        raise DatasetError("frame pairs must be whole frame indices (i, j); got fractional values")
+    pairs = given.astype(np.int64).reshape(-1, 2)
     if pairs.size and (pairs.min() < 0 or pairs.max() >= len(gt)):
         raise DatasetError(f"frame pairs must index 0..{len(gt) - 1}")
     i, j = pairs[:, 0], pairs[:, 1]
@@ -161,6 +166,10 @@ def kitti_segments(gt: np.ndarray, lengths_m=KITTI_SEGMENT_LENGTHS_M, step: int 
     """The devkit's segments as rows (first_frame, last_frame, length_m)."""
     if step < 1:
         raise DatasetError(f"step must be >= 1, got {step}")
+    lengths = np.asarray(lengths_m, dtype=np.float64).reshape(-1)
+    if not (np.isfinite(lengths).all() and (lengths > 0).all()):
+        # A zero length divides by zero (inf t_rel), a negative one gives a negative error.
+        raise DatasetError(f"segment lengths must be finite and > 0 m, got {lengths_m!r}")
     distances = trajectory_distances_m(gt)
     rows = []
     for first in range(0, len(distances), step):

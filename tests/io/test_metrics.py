@@ -86,6 +86,15 @@ def test_metrics_accept_any_layout_and_reject_bad_input() -> None:
         ate_rmse(gt, est[:, :, :3])
     with pytest.raises(DatasetError, match="align must be"):
         ate_rmse(gt, est, align="rigid")
+    # Before: a zero length gave inf t_rel, a negative one a negative error, a fractional pair was truncated,
+    # and NaN points ended in "SVD did not converge".
+    for lengths in ([0.0], [-100.0]):
+        with pytest.raises(DatasetError, match="segment lengths must be finite and > 0"):
+            relative_errors_kitti(gt, est, lengths=lengths)
+    with pytest.raises(DatasetError, match="whole frame indices"):
+        relative_pose_errors(gt, est, [[0.5, 3.7]])
+    with pytest.raises(DatasetError, match="every coordinate finite"):
+        umeyama_alignment(np.full((4, 2), np.nan), np.zeros((4, 2)))
 
 
 def devkit_relative_errors(
