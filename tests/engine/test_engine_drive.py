@@ -41,3 +41,21 @@ def test_network_integrates_the_kitti_00_ground_truth_shape(shared_data):
     # The network follows the real drive (turns included) to within 2 % of the distance travelled.
     assert err[-1] < 0.02 * distance, (err[-1], distance)
     assert (result.bump_counts[-1] == [1, 4, 16]).all()
+
+
+def test_a_drive_with_arrays_of_different_lengths_and_absurd_seeds_are_refused():
+    import dataclasses
+
+    from hippo_nav import HippoNavError
+
+    poses = loop_trajectory(20)
+    odo = planar_odometry(poses, 0.1 * np.arange(len(poses)))
+    short = dataclasses.replace(odo, dt_s=odo.dt_s[:-5])  # zip cut the drive to the shortest, without a word
+    with pytest.raises(HippoNavError, match="differ in length"):
+        drive(SpatialMemory(), short)
+    sm = SpatialMemory()
+    for heading, phase in ((1e17, (0.0, 0.0)), (0.0, (0.0, 1e20)), (0.0, (1.0,))):
+        with pytest.raises(HippoNavError, match="reset angles|two angles"):
+            sm.reset(heading, phase)
+    sm.reset(2.0, (1.0, -1.0))
+    assert sm.readout().heading_rad == pytest.approx(2.0, abs=0.05)

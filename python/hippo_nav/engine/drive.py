@@ -68,8 +68,15 @@ class DriveResult:
 def drive(sm: SpatialMemory, odometry: PlanarOdometry, progress: bool = False) -> DriveResult:
     """Step `sm` once per odometry step, collecting the decoded state. Ctrl-C stops early and returns the
     frames integrated so far (`interrupted` is then True)."""
+    lengths = {len(odometry.yaw_rate_rad_s), len(odometry.speed_m_s), len(odometry.dt_s)}
+    if len(lengths) != 1:
+        # zip would stop at the shortest and drop the rest of the drive without a word.
+        raise HippoNavError(
+            f"odometry arrays differ in length (yaw_rate_rad_s {len(odometry.yaw_rate_rad_s)}, speed_m_s "
+            f"{len(odometry.speed_m_s)}, dt_s {len(odometry.dt_s)}); give one value of each a step"
+        )
     readouts = [sm.readout()]
-    steps = zip(odometry.yaw_rate_rad_s, odometry.speed_m_s, odometry.dt_s)
+    steps = zip(odometry.yaw_rate_rad_s, odometry.speed_m_s, odometry.dt_s, strict=True)
     if progress:
         from tqdm import tqdm
 

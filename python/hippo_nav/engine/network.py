@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hippo_nav import _core
-from hippo_nav._core import Bump, ModuleReadout, SpatialReadout
+from hippo_nav._core import Bump, HippoNavError, ModuleReadout, SpatialReadout
 from hippo_nav.engine.config import N_MODULES, EngineConfig
 
 __all__ = ["Bump", "ModuleReadout", "SpatialMemory", "SpatialReadout", "ViewPatterns"]
@@ -28,6 +28,10 @@ class ViewPatterns:
     hd_profile: np.ndarray
     grid_layer2: list[np.ndarray | None]
     strength: float = 1.0
+
+
+MAX_SEED_ANGLE_RAD = 1.0e6
+"""The largest angle `SpatialMemory.reset` takes (rad): beyond, too few of its digits lie below 2π."""
 
 
 class SpatialMemory:
@@ -54,7 +58,17 @@ class SpatialMemory:
         return self._net.readout()
 
     def reset(self, heading_rad: float = 0.0, phase_rad: tuple[float, float] = (0.0, 0.0)) -> None:
-        self._net.reset(float(heading_rad), (float(phase_rad[0]), float(phase_rad[1])))
+        """Seed one bump per network: the heading (rad) and the place phase on the torus (rad, x and y)."""
+        values = np.asarray([heading_rad, *np.asarray(phase_rad, dtype=np.float64).reshape(-1)], np.float64)
+        if values.size != 3:
+            raise HippoNavError(f"phase_rad must be two angles (x, y) in rad, got {phase_rad!r}")
+        if not (np.isfinite(values).all() and np.abs(values).max() <= MAX_SEED_ANGLE_RAD):
+            # An angle of 1e17 rad has no digits left below 2π: it seeded a flat ring or striped bumps.
+            raise HippoNavError(
+                f"reset angles (heading {heading_rad!r}, phase {phase_rad!r}) must be finite and within "
+                f"±{MAX_SEED_ANGLE_RAD:g} rad"
+            )
+        self._net.reset(float(values[0]), (float(values[1]), float(values[2])))
 
     def set_lesions(self, ventral: bool = False, intermediate: bool = False, dorsal: bool = False) -> None:
         """Switch grid modules off ("MEC inactivation"); a lesioned module leaves the fusion."""
