@@ -59,3 +59,13 @@ def test_a_drive_with_arrays_of_different_lengths_and_absurd_seeds_are_refused()
             sm.reset(heading, phase)
     sm.reset(2.0, (1.0, -1.0))
     assert sm.readout().heading_rad == pytest.approx(2.0, abs=0.05)
+
+
+def test_a_network_state_without_a_part_is_refused_naming_it():
+    from hippo_nav import HippoNavError
+
+    sm = SpatialMemory()
+    state = sm.state()
+    del state["aux"]  # before: a bare KeyError
+    with pytest.raises(HippoNavError, match="lacks aux"):
+        sm.set_state(state)

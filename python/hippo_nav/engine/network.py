@@ -114,6 +114,9 @@ class SpatialMemory:
 
     def set_state(self, state: dict) -> None:
         """Restore `state()`; validated as a whole before anything changes."""
+        missing = [key for key in ("hd", "grid", "place", "aux") if key not in state]
+        if missing:
+            raise HippoNavError(f"the network state lacks {', '.join(missing)}; give a dict made by state()")
         self._net.set_state(
             np.asarray(state["hd"], dtype=np.float64),
             [np.asarray(g, dtype=np.float64) for g in state["grid"]],
