@@ -45,8 +45,24 @@ def check_regular_file(path: Path, what: str, hint: str) -> None:
     raise DatasetError(f"{path}: {what} not found; {hint}")
 
 
+def _improper_rotations(rotations: np.ndarray) -> np.ndarray:
+    """(n,) True where an (n, 3, 3) block is not a proper rotation within `ROTATION_TOLERANCE` (RᵀR = I,
+    det R = 1): what the readers refuse and the writers will not write."""
+    # An entry beyond 1 is checked first: RᵀR of 1e200s overflows.
+    improper = np.abs(rotations).max(axis=(1, 2)) > 1.0 + ROTATION_TOLERANCE
+    bounded = np.where(improper[:, None, None], np.eye(3), rotations)
+    gram_error = np.abs(np.einsum("nji,njk->nik", bounded, bounded) - np.eye(3)).max(axis=(1, 2))
+    return (
+        improper
+        | (gram_error > ROTATION_TOLERANCE)
+        | (np.abs(np.linalg.det(bounded) - 1.0) > ROTATION_TOLERANCE)
+    )
+
+
 def _check_rotation(rotation: np.ndarray, path: Path, line: int) -> None:
-    if np.abs(rotation).max() > 1.0 + ROTATION_TOLERANCE:  # checked first: RᵀR of 1e200s overflows
+    if not _improper_rotations(rotation[None])[0]:
+        return
+    if np.abs(rotation).max() > 1.0 + ROTATION_TOLERANCE:
         raise file_error(
             path,
             f"the 3x3 block is not a rotation (it holds {np.abs(rotation).max():.4g}; a rotation's entries lie "
@@ -54,14 +70,12 @@ def _check_rotation(rotation: np.ndarray, path: Path, line: int) -> None:
             line,
         )
     gram_error = np.abs(rotation.T @ rotation - np.eye(3)).max()
-    det = np.linalg.det(rotation)
-    if gram_error > ROTATION_TOLERANCE or abs(det - 1.0) > ROTATION_TOLERANCE:
-        raise file_error(
-            path,
-            f"the 3x3 block is not a rotation (|RᵀR − I| = {gram_error:.2g}, det = {det:.4g}); "
-            "each line must hold a proper rotation [R | t]",
-            line,
-        )
+    raise file_error(
+        path,
+        f"the 3x3 block is not a rotation (|RᵀR − I| = {gram_error:.2g}, det = {np.linalg.det(rotation):.4g}); "
+        "each line must hold a proper rotation [R | t]",
+        line,
+    )
 
 
 def _numbers(text: str, path: Path, line: int, expected: int, what: str) -> np.ndarray:
@@ -125,16 +139,8 @@ def _validated_poses(world_from_camera: np.ndarray) -> np.ndarray:
         raise DatasetError("no poses to write: a trajectory file holds at least one")
     if not np.all(np.isfinite(poses)):
         raise DatasetError("poses contain NaN or infinity; refusing to write them")
-    rotations = poses[:, :3, :3]
     far = np.abs(poses[:, :3, 3]).max(axis=1) > MAX_COORDINATE_M
-    bad = (
-        np.abs(rotations).max(axis=(1, 2)) > 1.0 + ROTATION_TOLERANCE
-    )  # checked first: RᵀR of 1e200s overflows
-    gram = np.einsum("nji,njk->nik", rotations, rotations) - np.eye(3)
-    bad |= np.abs(np.where(bad[:, None, None], 0.0, gram)).max(axis=(1, 2)) > ROTATION_TOLERANCE
-    bad |= (
-        np.abs(np.linalg.det(np.where(bad[:, None, None], np.eye(3), rotations)) - 1.0) > ROTATION_TOLERANCE
-    )
+    bad = _improper_rotations(poses[:, :3, :3])
     if bad.any():
         raise DatasetError(
             f"pose #{int(np.argmax(bad))} is not [R | t] with R a proper rotation (RᵀR = I, det R = 1); "
