@@ -731,6 +731,19 @@ impl ExperienceMap {
             check_pose("loop measurement", &closure.agent_from_target)?;
             check_information(self.links.len(), &closure.information)?;
         }
+        // Steps each within bounds can add up beyond them: check where this one would put the agent before
+        // anything changes, or the frame fails half-applied when its vertex is made and every later one
+        // fails with it.
+        if let (false, Some(current)) = (self.lost, self.current) {
+            let vertex_from_agent = self.current_from_agent.compose(&input.odometry_step);
+            check_pose("the odometry since the current vertex", &vertex_from_agent)?;
+            check_pose(
+                "the agent's position",
+                &self.vertices[current]
+                    .world_from_vertex
+                    .compose(&vertex_from_agent),
+            )?;
+        }
         Ok(())
     }
 

@@ -113,17 +113,28 @@ pub fn from_bytes(bytes: &[u8]) -> Result<ExperienceMap> {
 fn validate(map: &ExperienceMap) -> Result<()> {
     map.params.validate()?;
     let len = map.vertices.len();
+    // What `add_vertex` and `add_link` refuse, a file edited with its checksum recomputed must not bring in.
     for v in &map.vertices {
         check_pose("stored vertex pose", &v.world_from_vertex)?;
     }
-    for l in &map.links {
+    for (k, l) in map.links.iter().enumerate() {
         for vertex in [l.from, l.to] {
             if vertex >= len {
                 return Err(MapError::UnknownVertex { vertex, len });
             }
         }
+        if l.from == l.to {
+            return Err(MapError::SelfLink { vertex: l.from });
+        }
         check_pose("stored link transform", &l.from_from_to)?;
-        crate::graph::check_information(0, &l.information)?;
+        crate::graph::check_information(k, &l.information)?;
+        if !(l.elapsed_s.is_finite() && l.elapsed_s >= 0.0) {
+            return Err(MapError::BadParameter {
+                name: "stored link elapsed_s",
+                value: l.elapsed_s.to_string(),
+                why: "must be finite and >= 0".into(),
+            });
+        }
     }
     if let Some(vertex) = map.current {
         if vertex >= len {

@@ -303,6 +303,21 @@ fn corrupted_truncated_and_foreign_files_are_rejected_with_a_reason() {
         )
     };
     assert!(message(header_for(&broken).as_bytes()).contains("does not exist"));
+    // A link from a vertex to itself, which `add_link` refuses, is refused in a file too.
+    let first_link = payload.find("\"from\":0,\"to\":1,").expect("a link 0 -> 1");
+    let self_linked = format!(
+        "{}\"from\":0,\"to\":0,{}",
+        &payload[..first_link],
+        &payload[first_link + "\"from\":0,\"to\":1,".len()..]
+    );
+    assert!(message(header_for(&self_linked).as_bytes()).contains("self-links"));
+    // A link that took negative time.
+    let elapsed = payload
+        .find("\"elapsed_s\":")
+        .expect("a link's elapsed time")
+        + "\"elapsed_s\":".len();
+    let backwards = format!("{}-{}", &payload[..elapsed], &payload[elapsed..]);
+    assert!(message(header_for(&backwards).as_bytes()).contains("elapsed_s"));
 }
 
 fn fnv(bytes: &[u8]) -> u64 {
@@ -727,4 +742,36 @@ fn a_step_beyond_any_map_is_refused_and_leaves_the_map_as_it_was() {
                                        // The same bound on a vertex added directly and on a pose graph's vertices.
     let mut graph = hippo_map::PoseGraph::new();
     assert!(graph.add_vertex(Pose2::new(0.0, 2e9, 0.0)).is_err());
+}
+
+#[test]
+fn steps_that_add_up_beyond_any_map_are_refused_before_anything_changes() {
+    // Each step is within the bound; their sum is not. The frame that would cross it is refused whole
+    // (it used to advance the odometer and the agent, then fail making its vertex, and every later frame failed).
+    let mut map = ExperienceMap::new(MapParams::default()).unwrap();
+    let frames = square_circuit(1, 0.0);
+    map.on_frame(&frames[0]).unwrap();
+    let mut far = frames[1];
+    far.odometry_step = Pose2::new(6e8, 0.0, 0.0);
+    map.on_frame(&far).unwrap();
+    let (vertices, links, odometer, count) = (
+        map.vertices().len(),
+        map.links().len(),
+        map.odometer_m(),
+        map.frames(),
+    );
+    let agent = map.world_from_agent().unwrap();
+    let err = map.on_frame(&far).unwrap_err().to_string();
+    assert!(err.contains("beyond any map"), "{err}");
+    assert_eq!(
+        (
+            map.vertices().len(),
+            map.links().len(),
+            map.odometer_m(),
+            map.frames()
+        ),
+        (vertices, links, odometer, count)
+    );
+    assert_eq!(map.world_from_agent().unwrap(), agent);
+    map.on_frame(&frames[2]).unwrap(); // a plausible step still goes on
 }
