@@ -4,6 +4,8 @@ the shared panels, and their command-line flags."""
 from __future__ import annotations
 
 import argparse
+import json
+import os
 import re
 import socket
 import sys
@@ -278,6 +280,61 @@ def test_rerun_flush_that_fails_does_not_stop_the_run(caplog):
     observer.rec.flush = refuse
     observer.close()
     assert "did not take the last data" in caplog.text and observer.rec.closed
+
+
+def test_a_recording_rerun_could_not_finish_is_not_put_at_its_name(tmp_path):
+    """Rerun could not write the rest of a recording (a full disk): the file is cut short, and a file at the
+    target's name is always a whole recording, so nothing is put there and the close says so."""
+    rr = FakeRerun()
+    rrd = tmp_path / "run.rrd"
+    observer = RerunObserver(rrd, rr=rr)
+    Pipeline(demo(3), observers=[observer]).run()
+
+    def refuse(timeout_sec: float = 1e38) -> None:
+        raise RuntimeError("No space left on device (os error 28)")
+
+    observer.rec.flush = refuse
+    with pytest.raises(HippoNavError, match=r"run\.rrd could not be finished.*No space left.*is the disk full"):
+        observer.close()
+    assert list(tmp_path.iterdir()) == []  # neither the target nor the partial file
+    observer.close()  # a second close (the CLI closes every observer after an error) does nothing
+
+
+def test_a_finished_recording_has_the_permissions_of_any_other_output(observed):
+    umask = os.umask(0)
+    os.umask(umask)
+    assert observed.rrd.stat().st_mode & 0o777 == 0o666 & ~umask
+
+
+def test_a_video_that_cannot_finish_does_not_hide_where_the_results_were_saved(
+    tmp_path, monkeypatch, capsys, caplog
+):
+    """A full disk stops the results folder and the video alike: the message names the folder the results
+    were rescued to (the video's failure is a warning), and --json says it too."""
+    import hippo_nav.pipeline
+    from hippo_nav.io.atomic import WriteError
+    from hippo_nav.pipeline.results import ResultsNotWrittenError
+
+    rescued = tmp_path / "rescued"
+    out = tmp_path / "run"
+
+    def full_disk(out_dir, **_):
+        err = ResultsNotWrittenError(WriteError(Path(out_dir) / "frames.csv", "the disk is full"), rescued)
+        err.result = SimpleNamespace(out_dir=rescued, metrics={}, record=[], interrupted=False)
+        raise err
+
+    def video_fails(self) -> None:
+        raise HippoNavError(f"cannot write {out / 'mapping.mp4'}: the disk is full")
+
+    monkeypatch.setattr(hippo_nav.pipeline, "run", full_disk)
+    monkeypatch.setattr(VideoObserver, "close", video_fails)
+    args = ["run", "--out", str(out), "--no-progress", "--video"]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert f"written to {rescued} instead" in err and "Traceback" not in err
+    assert "mapping.mp4: the disk is full" in caplog.text  # the video's failure, as a warning
+    assert main([*args, "--json"]) == 2
+    assert json.loads(capsys.readouterr().out)["results"] == str(rescued)
 
 
 def test_a_program_on_the_viewers_port_that_never_answers_does_not_hold_the_run(monkeypatch, caplog):

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
+import logging
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -195,16 +196,35 @@ def command(args: argparse.Namespace) -> int:
         except HippoNavError as err:
             # Stopped by an unreadable frame mid-run, or a results folder that stopped taking files: the
             # results exist (`err.result`). Without --json (or without results) `main` prints the one line.
+            # That error is the one to report: a viewer or video that cannot finish too (the same full disk)
+            # only adds a warning, or its error would hide where the results were saved.
+            _close_after_failure(observers)
             if not args.json or getattr(err, "result", None) is None:
                 raise
             print(f"hippo-nav: error: {err}", file=sys.stderr)
             failure, result = err, err.result  # type: ignore[attr-defined]
-        finally:
-            for observer in observers:
-                observer.close()
+        except BaseException:
+            _close_after_failure(observers)
+            raise
+        else:
+            try:
+                for observer in observers:
+                    observer.close()
+            except HippoNavError as err:
+                _close_after_failure(observers)
+                raise HippoNavError(f"{err} (the run's results are written, in {result.out_dir})") from err
     if args.json:
         return _print_json(args, result, failure)
     return _print_result(args, result)
+
+
+def _close_after_failure(observers: list[Any]) -> None:
+    """Close every observer, each failure a warning: an error is already on its way to the user."""
+    for observer in observers:
+        try:
+            observer.close()
+        except Exception as err:  # noqa: BLE001 - the run's own error is the one reported
+            logging.getLogger("hippo_nav").warning("warning: %s", err)
 
 
 def _exit(result: RunResult) -> tuple[str, int, str | None]:

@@ -78,6 +78,14 @@ def _temporary(path: Path, suffix: str) -> tuple[int, Path]:
     raise WriteError(path, "no free temporary name beside it")
 
 
+def fresh_file_beside(path: str | Path, suffix: str) -> Path:
+    """A new empty file beside `path` (a hidden name from it, `suffix` at the end), created exclusively, with
+    the permissions of a plain `open`: for a writer that fills it and renames it to `path` when it is whole."""
+    fd, tmp = _temporary(Path(path), suffix)
+    os.close(fd)
+    return tmp
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """A fresh temporary path next to `path` (same suffix, so writers that choose the format by it still

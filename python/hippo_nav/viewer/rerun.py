@@ -33,7 +33,6 @@ from __future__ import annotations
 import os
 import socket
 import sys
-import tempfile
 import threading
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
@@ -42,8 +41,10 @@ from typing import Any
 import cv2
 import numpy as np
 
+from hippo_nav._core import HippoNavError
 from hippo_nav.engine import SpatialReadout
 from hippo_nav.geometry import planar_xy
+from hippo_nav.io.atomic import fresh_file_beside
 from hippo_nav.pipeline.observers import FrameEvent
 from hippo_nav.pipeline.records import RunResult
 from hippo_nav.system.records import STAGES, FrameRecord
@@ -198,6 +199,7 @@ class RerunObserver:
         self.target = target
         self._save_to: Path | None = None
         self._partial: Path | None = None
+        self._closed = False
         if recording is None:
             recording = self.rr.RecordingStream(application_id)
             if target is None:
@@ -300,7 +302,10 @@ class RerunObserver:
         `FLUSH_TIMEOUT_S` for each: a program on the viewer's port that takes the connection but is not a
         viewer (or a viewer that hangs) would otherwise hold the finished run for ever, in the close and
         again in Rerun's own shutdown when the process exits."""
-        self._flush()
+        if self._closed:
+            return
+        self._closed = True
+        unflushed = self._flush()
         closing = threading.Thread(target=self.rec.disconnect, name="rerun-disconnect", daemon=True)
         closing.start()
         closing.join(FLUSH_TIMEOUT_S)
@@ -318,15 +323,25 @@ class RerunObserver:
                 unregister()
             return
         if self._partial is not None and self._save_to is not None:
-            os.replace(self._partial, self._save_to)
-            self._partial = None
+            partial, self._partial = self._partial, None
+            if unflushed is not None:
+                # Rerun could not write the rest (a full disk): the file is cut short, and a file at the
+                # target's name is a whole recording.
+                partial.unlink(missing_ok=True)
+                raise HippoNavError(
+                    f"the Rerun recording {self._save_to} could not be finished ({unflushed}); nothing was "
+                    "put at that name (is the disk full?)"
+                )
+            os.replace(partial, self._save_to)
 
-    def _flush(self) -> None:
+    def _flush(self) -> Exception | None:
         """Flush, waiting at most `FLUSH_TIMEOUT_S`: a viewer that went away (or never came up) must not
-        hold a finished run forever; its results are written before this."""
+        hold a finished run forever; its results are written before this. The error, or None."""
         try:
             self.rec.flush(timeout_sec=FLUSH_TIMEOUT_S)
         except Exception as err:  # noqa: BLE001 - rerun raises its own error types; the run is done anyway
+            if self._save_to is not None:
+                return err  # a recording to a file: `close` says it could not be finished
             import logging
 
             logging.getLogger("hippo_nav.viewer").warning(
@@ -334,6 +349,7 @@ class RerunObserver:
                 "written, the viewer may miss its last frames",
                 FLUSH_TIMEOUT_S, err,
             )  # fmt: skip
+        return None
 
     # ----------------------------------------------------------------------------------------------
     def _start(self, event: FrameEvent) -> None:
@@ -343,11 +359,7 @@ class RerunObserver:
             # Recorded under a fresh name created exclusively beside the target (no link followed), which
             # `close` renames to the target: a file at the target's name is always a whole recording.
             self._save_to.parent.mkdir(parents=True, exist_ok=True)
-            fd, partial = tempfile.mkstemp(
-                dir=self._save_to.parent, prefix=f".{self._save_to.name}.", suffix=".rrd"
-            )
-            os.close(fd)
-            self._partial = Path(partial)
+            self._partial = fresh_file_beside(self._save_to, ".rrd")
             self.rec.save(self._partial)
         names = [p.name for p in neural_panels(event.network, event.readout)]
         series = {
