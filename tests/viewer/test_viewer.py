@@ -294,7 +294,9 @@ def test_a_recording_rerun_could_not_finish_is_not_put_at_its_name(tmp_path):
         raise RuntimeError("No space left on device (os error 28)")
 
     observer.rec.flush = refuse
-    with pytest.raises(HippoNavError, match=r"run\.rrd could not be finished.*No space left.*is the disk full"):
+    with pytest.raises(
+        HippoNavError, match=r"run\.rrd could not be finished.*No space left.*is the disk full"
+    ):
         observer.close()
     assert list(tmp_path.iterdir()) == []  # neither the target nor the partial file
     observer.close()  # a second close (the CLI closes every observer after an error) does nothing
