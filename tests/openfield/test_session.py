@@ -197,6 +197,18 @@ def test_record_writes_a_session_and_keeps_it(tmp_path, capsys):
     assert main([*args, "--overwrite", "--seed", "5"]) == 0
 
 
+def test_record_refuses_a_runs_results_folder_even_with_overwrite(tmp_path, capsys):
+    """A run's folder holds its own recording.npz, which `figures --run` reads with the run's other files."""
+    run = tmp_path / "run"
+    assert main(["run", "--out", str(run), "--stop", "5", "--no-progress", "--no-figures"]) == 0
+    before = (run / "recording.npz").read_bytes()
+    capsys.readouterr()
+    args = ["record", "--out", str(run), "--duration", "2", "--no-analysis", "--no-progress"]
+    assert main([*args, "--overwrite"]) == 2
+    assert "results folder of a `hippo-nav run`" in capsys.readouterr().err
+    assert (run / "recording.npz").read_bytes() == before
+
+
 @pytest.mark.parametrize(
     ("flags", "words"),
     [

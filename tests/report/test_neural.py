@@ -125,6 +125,41 @@ def test_an_older_results_folder_without_a_recording_is_refused_with_the_way_out
     assert "no such results folder" in capsys.readouterr().err
 
 
+def _truncated(path) -> None:
+    path.write_bytes(path.read_bytes()[:300])
+
+
+def _phases_of_fewer_frames(path) -> None:
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    for name in ("frame_index", "timestamp_s", "tracked_rad", "position_m"):
+        arrays[name] = arrays[name][:5]
+    np.savez(path, **arrays)
+
+
+def _phases_with_a_short_array(path) -> None:
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    arrays["position_m"] = arrays["position_m"][:5]
+    np.savez(path, **arrays)
+
+
+@pytest.mark.parametrize(
+    ("damage", "says"),
+    [
+        (_truncated, "not a readable module-phase file"),
+        (_phases_with_a_short_array, "position_m has shape"),
+        (_phases_of_fewer_frames, "come from different runs"),
+    ],
+)
+def test_figures_run_on_damaged_or_mismatched_files_is_one_line(run_copy, capsys, damage, says):
+    damage(run_copy / MODULE_PHASE_FILE)
+    assert main(["figures", "--run", str(run_copy)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert says in err and len(err.splitlines()) == 1 and "Traceback" not in err
+    assert not (run_copy / "figures").exists()
+
+
 def test_circular_error_wraps_whole_spacings_and_reports_rms():
     true = np.column_stack([np.linspace(0.0, 200.0, 101), np.zeros(101)])
     decoded = true + [0.5, 0.0] + 25.0 * (np.arange(101)[:, None] % 3)  # off by 0.5 m and whole spacings

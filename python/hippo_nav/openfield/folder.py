@@ -8,6 +8,7 @@ from pathlib import Path
 
 from hippo_nav._core import HippoNavError
 from hippo_nav.io.atomic import output_folder, write_text
+from hippo_nav.pipeline.results import RESULTS_MARK
 from hippo_nav.recording import Recording
 
 __all__ = ["SESSION_FILES", "SessionFolder", "analyse_session"]
@@ -22,6 +23,13 @@ class SessionFolder:
 
     def __init__(self, out: str | Path, overwrite: bool = False) -> None:
         self.path = output_folder(out, "the session's files")
+        if (self.path / RESULTS_MARK).exists():
+            # A run's results folder holds a recording.npz of its own, which `figures --run` reads with the
+            # run's other files: a session written over it would break the run, --overwrite or not.
+            raise HippoNavError(
+                f"--out {out} is the results folder of a `hippo-nav run` (it holds {RESULTS_MARK}); a session "
+                "goes into a folder of its own: give another --out"
+            )
         existing = [name for name in SESSION_FILES if (self.path / name).exists()]
         if existing and not overwrite:
             raise HippoNavError(

@@ -19,6 +19,7 @@ Size: every population keeps at most `records.UNITS_PER_AXIS`² = 64 units (the 
 from __future__ import annotations
 
 import json
+import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -79,15 +80,17 @@ class ModulePhases:
         """Read `save`'s file; a missing or foreign one is a `RecordingError` naming it."""
         path = Path(path)
         try:
-            with np.load(path, allow_pickle=False) as z:
+            # np.load given a name leaves the file open when it is not a zip archive: open it here.
+            with path.open("rb") as f, np.load(f, allow_pickle=False) as z:
                 arrays = {k: z[k] for k in z.files}
             if str(arrays["format"]) != _PHASE_FORMAT:
                 raise ValueError(f"format {str(arrays['format'])!r}, expected {_PHASE_FORMAT!r}")
+            _check_phase_shapes(arrays)
         except FileNotFoundError:
             raise RecordingError(f"{path}: no such file") from None
         except OSError as err:
             raise RecordingError(f"{path}: not readable ({os_error_words(err)})") from None
-        except (ValueError, KeyError, EOFError) as err:
+        except (ValueError, KeyError, EOFError, zipfile.BadZipFile) as err:
             raise RecordingError(f"{path}: not a readable module-phase file ({err})") from None
         return cls(
             frame_index=arrays["frame_index"],
@@ -98,6 +101,23 @@ class ModulePhases:
             module_k=tuple(int(k) for k in arrays["module_k"]),
             torus_period_m=float(arrays["torus_period_m"]),
         )
+
+
+def _check_phase_shapes(arrays: dict[str, np.ndarray]) -> None:
+    """A ValueError naming the first array whose shape disagrees with a file of frames × modules."""
+    frames, modules = arrays["frame_index"].shape[:1], arrays["module_k"].shape
+    wanted = {
+        "frame_index": frames,
+        "timestamp_s": frames,
+        "tracked_rad": (*frames, *modules, 2),
+        "start_tracked_rad": (*modules, 2),
+        "position_m": (*frames, *modules, 2),
+        "module_k": modules,
+        "torus_period_m": (),
+    }
+    for name, shape in wanted.items():
+        if arrays[name].shape != shape:
+            raise ValueError(f"{name} has shape {arrays[name].shape}, expected {shape}")
 
 
 def _rotation(angle_rad: float) -> np.ndarray:

@@ -186,9 +186,19 @@ def load_run_recording(folder: str | Path) -> tuple[Recording, ModulePhases]:
             "--overwrite"
         )
     try:
-        return Recording.load(folder / RECORDING_FILE), ModulePhases.load(folder / MODULE_PHASE_FILE)
+        recording, phases = (
+            Recording.load(folder / RECORDING_FILE),
+            ModulePhases.load(folder / MODULE_PHASE_FILE),
+        )
     except RecordingError as err:
         raise HippoNavError(f"--run {folder}: {err}; run it again to write a whole recording") from None
+    # Both are written by one run, a row a frame: files of different runs (one copied in) do not pair.
+    if len(recording.time_s) != len(phases.frame_index):
+        raise HippoNavError(
+            f"--run {folder}: {RECORDING_FILE} holds {len(recording.time_s)} frames and {MODULE_PHASE_FILE} "
+            f"{len(phases.frame_index)}: they come from different runs; run it again to write both"
+        )
+    return recording, phases
 
 
 # ------------------------------------------------------------------------------------------------
