@@ -22,6 +22,8 @@ from hippo_nav._core import HippoNavError
 from hippo_nav.cli import main
 from hippo_nav.report import write_report
 from hippo_nav.report.collect import collect
+from hippo_nav.report.tables import axis_columns
+from hippo_nav.report.tables import groups as report_groups
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -171,6 +173,43 @@ def test_malformed_sweep_manifests_config_and_bump_tables_skip_the_run(tmp_path,
     assert "manifest.json: status: expected one of" in reasons["run_2"]
     assert "config.json: views.novelty_threshold: out of range" in reasons["run_3"]
     assert "bump_table.csv: line 2, column sigma_x_rad: 'abc' is not a number" in reasons["run_4"]
+
+
+def _sweep_run(runs: Path, name: str, seed: int, ate: float, novelty: float, stop: int) -> None:
+    """A done sweep run with the manifest a sweep writes (axes: only what the sweep varied)."""
+    folder = runs / name
+    folder.mkdir(parents=True)
+    (folder / "metrics.json").write_text(json.dumps(_metrics(seed, ate)), encoding="utf-8")
+    manifest = {
+        "run_id": name,
+        "status": "done",
+        "axes": {"sequence": None, "odometry": "vo", "lesion": "none", "seed": seed},
+        "dataset": {"path": None, "kind": None, "start": None, "stop": stop, "stride": 1, "checksum": "x"},
+        "config": {"seed": seed, "vo": {"seed": seed}, "views": {"novelty_threshold": novelty}},
+    }
+    (folder / "manifest.json").write_text(json.dumps(manifest), encoding="utf-8")
+
+
+def test_sweeps_of_other_base_configs_or_frame_ranges_are_not_pooled(tmp_path):
+    """Two sweeps into one folder, or reported together, whose runs vary the same axes (the seed) but were
+    set up otherwise: each setting that differs is a column, and the statistics are per setting."""
+    runs = tmp_path / "sweep" / "runs"
+    _sweep_run(runs, "a0", 0, 0.10, 0.45, 40)
+    _sweep_run(runs, "a1", 1, 0.12, 0.45, 40)
+    _sweep_run(runs, "b0", 0, 0.50, 0.41, 40)
+    _sweep_run(runs, "b1", 1, 0.52, 0.41, 40)
+    _sweep_run(runs, "c0", 0, 0.90, 0.45, 15)
+    rows, _ = collect([tmp_path / "sweep"])
+    assert {r.run_id: (r.axes["views.novelty_threshold"], r.axes["stop"]) for r in rows} == {
+        "a0": (0.45, 40), "a1": (0.45, 40), "b0": (0.41, 40), "b1": (0.41, 40), "c0": (0.45, 15),
+    }  # fmt: skip
+    assert not any("vo.seed" in r.axes for r in rows)  # the seed is an axis of its own
+    groups = report_groups(rows, axis_columns(rows))
+    means = sorted(round(g.stats("ate_2d_corrected_m").mean, 3) for g in groups)
+    assert means == [0.11, 0.51, 0.9]
+    # One sweep's runs, set up alike, get no extra column.
+    alone, _ = collect([runs / "a0", runs / "a1"])
+    assert all(set(r.axes) == {"sequence", "odometry", "lesion", "seed"} for r in alone)
 
 
 def test_no_readable_run_and_an_out_that_is_a_file_are_one_line(tmp_path, capsys):

@@ -57,6 +57,19 @@ def test_the_cross_product_and_stable_distinct_ids():
     )
 
 
+def test_a_base_config_names_its_runs_and_figures_do_not(tmp_path):
+    """A second sweep with another base config into the same folder makes runs of its own (other ids) instead
+    of replacing the first's; what is output (--no-figures) changes no result and no id."""
+    plain = [r.run_id for r in build_space(seeds="0-1").runs()]
+    assert [r.run_id for r in build_space(seeds="0-1", no_figures=True).runs()] == plain
+    base = tmp_path / "b.json"
+    base.write_text(json.dumps({"views": {"novelty_threshold": 0.41}}))
+    other = [r.run_id for r in build_space(seeds="0-1", config=str(base)).runs()]
+    assert [i.rsplit("-", 1)[0] for i in other] == [i.rsplit("-", 1)[0] for i in plain]  # the same slugs
+    assert not set(other) & set(plain)
+    assert [r.run_id for r in build_space(seeds="0-1", config=str(base)).runs()] == other  # resumable
+
+
 def test_a_bad_value_is_refused_before_anything_runs_with_the_config_files_message(tmp_path, capsys):
     with pytest.raises(HippoNavError, match=r"injection\.decay_per_frame.*got -1"):
         build_space(sets=["injection.decay_per_frame=0.5,-1"]).runs()
@@ -140,7 +153,7 @@ def test_resume_keeps_done_and_failed_runs_and_reruns_the_rest(tmp_path):
     leave(runs[0], "done")
     leave(runs[1], "failed")
     leave(runs[2], "interrupted")
-    leave(runs[3], "done", config="another")  # the base config or the defaults changed since
+    leave(runs[3], "done", config="another")  # the package's defaults changed since
     found = plan(runs, out)
     assert [s.run_id for s in found.done] == [runs[0].run_id]
     assert [s.run_id for s in found.failed] == [runs[1].run_id]

@@ -129,6 +129,9 @@ class RunRow:
     error: str | None
     axes: dict[str, Any]
     values: dict[str, float | None] = field(default_factory=dict)
+    # What the run was set up with besides its axes (a sweep's base config, its frame range), when known:
+    # runs that differ only there are not one configuration (`reveal_setups`).
+    setup: dict[str, Any] | None = None
 
 
 def find_run_folders(dirs: Sequence[str | Path]) -> list[tuple[Path, str]]:
@@ -197,6 +200,7 @@ def collect(dirs: Sequence[str | Path]) -> tuple[list[RunRow], list[SkippedRun]]
         except RunFileError as err:
             log.warning("warning: run left out of the report: %s", err)
             skipped.append(SkippedRun(folder, str(err)))
+    reveal_setups(rows)
     return rows, skipped
 
 
@@ -228,6 +232,8 @@ def _row(folder: Path, sweep: str) -> RunRow:
         error = _optional(metrics, "stopped_by_error", str, metrics_path, "text")
         run_id = folder.name
     row = RunRow(folder, run_id, sweep, str(status), error, axes)
+    if manifest is not None:
+        row.setup = _sweep_setup(manifest, manifest_path)
     timing: dict[str, Any] = {}
     if metrics is not None:
         for name, get in METRICS:
@@ -243,6 +249,53 @@ def _row(folder: Path, sweep: str) -> RunRow:
         else:
             row.values[name] = _checked(timing.get(name), metrics_path, f"timing.{name}", "non-negative")
     return row
+
+
+_OWN_AXES = ("seed", "vo.seed")  # the seed is an axis of its own (vo.seed follows it), as are the lesions
+_DATASET_FLAGS = {
+    "path": "dataset",
+    "kind": "dataset_kind",
+    "start": "start",
+    "stop": "stop",
+    "stride": "stride",
+}
+
+
+def _sweep_setup(manifest: dict[str, Any], path: Path) -> dict[str, Any] | None:
+    """A sweep run's dataset flags and resolved config, flat (None before its config was resolved)."""
+    config, dataset = manifest.get("config"), manifest.get("dataset")
+    if not isinstance(config, dict) or not isinstance(dataset, dict):
+        return None
+    setup = {
+        key: value
+        for key, value in dotted(config).items()
+        if key not in _OWN_AXES and not key.startswith("lesions.")
+    }
+    for name, flag in _DATASET_FLAGS.items():
+        setup[flag] = dataset.get(name)
+    for key, value in setup.items():
+        _check_axis_value(value, path, key)
+    return setup
+
+
+def reveal_setups(rows: Sequence[RunRow]) -> None:
+    """Runs whose axes are equal but that were set up differently (two sweeps with other base configs or
+    frame ranges in one folder, or several sweeps reported together) are not one configuration: each setting
+    in which the sweep runs differ becomes an axis of theirs, so the tables group and label them apart."""
+    known = [row for row in rows if row.setup is not None]
+    axes = sorted({key for row in known for key in row.axes if key != "seed"})
+    together: dict[tuple[str, ...], list[RunRow]] = {}
+    for row in known:  # as the tables would group them
+        together.setdefault(tuple(repr(row.axes.get(key)) for key in axes), []).append(row)
+    keys = sorted({key for row in known for key in row.setup or {}})
+    differing = [
+        key
+        for key in keys
+        if any(len({repr((row.setup or {}).get(key)) for row in group}) > 1 for group in together.values())
+    ]
+    for key in differing:
+        for row in known:
+            row.axes.setdefault(key, (row.setup or {}).get(key))
 
 
 def read_json_object(path: Path) -> dict[str, Any] | None:

@@ -493,6 +493,11 @@ def _expand(
     keys = sorted(block.overrides)
     seeds: list[int | None] = list(block.seeds) if block.seeds else [None]
     data = dataset.as_dict()
+    # The base config names its runs too: a second sweep with another one into the same folder makes runs of
+    # its own beside the first's instead of replacing them. What it outputs (`output`: figures, recordings)
+    # changes no result, and a base config of nothing else keeps the ids it always had.
+    settings = {section: value for section, value in base.items() if section != "output"}
+    base_sha256 = hashlib.sha256(json.dumps(settings, sort_keys=True, default=str).encode()).hexdigest()
     for values in itertools.product(
         block.sequences, block.odometries, block.lesions, *(block.overrides[k] for k in keys),
         seeds,
@@ -518,6 +523,8 @@ def _expand(
             "dataset": data, "sequence": sequence, "odometry": odometry.as_dict(),
             "lesion": lesion, "seed": seed, "overrides": overrides,
         }  # fmt: skip
+        if settings:
+            facts["base_config_sha256"] = base_sha256
         spec = RunSpec(run_id(facts), dataset, sequence, odometry, lesion, seed, overrides, config)
         identity = json.dumps(
             [data, sequence, odometry.as_dict(), validated.identity_hash(lesion)], sort_keys=True, default=str
