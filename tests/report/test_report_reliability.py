@@ -212,6 +212,16 @@ def test_sweeps_of_other_base_configs_or_frame_ranges_are_not_pooled(tmp_path):
     assert all(set(r.axes) == {"sequence", "odometry", "lesion", "seed"} for r in alone)
 
 
+def test_an_earlier_run_set_aside_by_overwrite_is_not_a_run_of_its_own(tmp_path):
+    runs = tmp_path / "runs"
+    (run,) = _make_runs(runs, 1)
+    aside = run / ".hippo_nav_previous"  # what a killed `--overwrite` leaves
+    aside.mkdir()
+    (aside / "metrics.json").write_text(json.dumps(_metrics(0, 0.3)), encoding="utf-8")
+    rows, skipped = collect([runs])
+    assert [r.folder for r in rows] == [run] and skipped == []
+
+
 def test_no_readable_run_and_an_out_that_is_a_file_are_one_line(tmp_path, capsys):
     runs = tmp_path / "runs"
     (bad,) = _make_runs(runs, 1)

@@ -74,6 +74,11 @@ def test_a_report_of_nothing_or_an_unknown_metric_is_one_clear_line(plain_runs, 
     assert "no runs found" in capsys.readouterr().err
     assert main(["report", str(plain_runs), "--out", str(tmp_path / "r"), "--metric", "nope"]) == 2
     assert "--metric nope: no run has it" in capsys.readouterr().err
+    assert main(["report", str(plain_runs), "--out", str(tmp_path / "r"), "--sequence", "99"]) == 2
+    assert "--sequence 99: no run is of it" in capsys.readouterr().err
+    (tmp_path / "a_file").write_text("x")
+    assert main(["report", str(tmp_path / "a_file")]) == 2
+    assert "a file, not a folder" in capsys.readouterr().err
 
 
 def test_a_run_with_a_malformed_metrics_file_is_left_out_with_one_warning(

@@ -57,6 +57,11 @@ def test_the_cross_product_and_stable_distinct_ids():
     )
 
 
+def test_a_frame_range_that_holds_no_frame_is_refused_before_any_run():
+    with pytest.raises(HippoNavError, match="stop 10 is not after start 20"):
+        build_space(dataset={"start": 20, "stop": 10})
+
+
 def test_a_base_config_names_its_runs_and_figures_do_not(tmp_path):
     """A second sweep with another base config into the same folder makes runs of its own (other ids) instead
     of replacing the first's; what is output (--no-figures) changes no result and no id."""

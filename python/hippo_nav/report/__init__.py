@@ -72,6 +72,11 @@ def write_report(
         raise HippoNavError(f"--metric {metric}: no run has it; choose from {', '.join(value_columns(rows))}")
     if key is not None and key not in keys:
         raise HippoNavError(f"--key {key}: not a key the runs vary; they vary {', '.join(keys) or 'nothing'}")
+    run_sequences = sorted({str(r.axes.get("sequence")) for r in rows if r.axes.get("sequence") is not None})
+    if sequence is not None and sequence not in run_sequences:
+        raise HippoNavError(
+            f"--sequence {sequence}: no run is of it; the runs are of {', '.join(run_sequences) or 'the demo loop'}"
+        )
     out = output_folder(out, "the report")
     files = write_tables(rows, out, skipped)
     lesions = lesion_comparison(rows, keys)

@@ -142,8 +142,12 @@ def find_run_folders(dirs: Sequence[str | Path]) -> list[tuple[Path, str]]:
     for given in dirs:
         root = Path(given)
         if not root.is_dir():
-            raise HippoNavError(f"{given}: no such folder (give sweep folders or hippo-nav run folders)")
+            what = "a file, not a folder" if root.exists() else "no such folder"
+            raise HippoNavError(f"{given}: {what} (give sweep folders or hippo-nav run folders)")
         candidates = {p.parent for p in root.rglob("metrics.json")} | {p.parent for p in root.rglob(MANIFEST)}
+        # A hidden folder is not a run of its own: `.hippo_nav_previous/` holds an earlier run that an
+        # `--overwrite` set aside (and puts back or removes).
+        candidates = {f for f in candidates if not any(p.startswith(".") for p in f.relative_to(root).parts)}
         # A sweep's runs in the order of its space (the lesion conditions as given); other folders by name.
         ranks = {f.parent: _run_order(f.parent.parent) for f in candidates if f.parent.name == RUNS_DIR}
         for folder in sorted(

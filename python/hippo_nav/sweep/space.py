@@ -796,5 +796,10 @@ def _dataset_input(flags: dict[str, Any]) -> DatasetInput:
         ):
             raise HippoNavError(f"{name} {_shown(value)}: give an integer frame number from {lo} to {hi}")
         numbers[name] = value
+    if numbers["start"] is not None and numbers["stop"] is not None and numbers["stop"] <= numbers["start"]:
+        raise HippoNavError(
+            f"stop {numbers['stop']} is not after start {numbers['start']}: no frame would run (stop is the frame "
+            "to stop before)"
+        )
     stride = numbers["stride"] if numbers["stride"] is not None else 1
     return DatasetInput(path, kind, numbers["start"], numbers["stop"], stride, tuple(sorted(options.items())))
