@@ -57,6 +57,13 @@ def test_the_cross_product_and_stable_distinct_ids():
     )
 
 
+def test_a_key_given_twice_in_a_yaml_sweep_file_is_refused(tmp_path):
+    twice = tmp_path / "twice.yaml"
+    twice.write_text("seeds: 0-1\nseeds: 0-4\n")
+    with pytest.raises(HippoNavError, match="key 'seeds' appears twice"):
+        build_space(twice)
+
+
 def test_a_frame_range_that_holds_no_frame_is_refused_before_any_run():
     with pytest.raises(HippoNavError, match="stop 10 is not after start 20"):
         build_space(dataset={"start": 20, "stop": 10})

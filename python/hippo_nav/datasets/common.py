@@ -38,10 +38,10 @@ MAX_YAML_VALUES = 10_000
 stand for billions of values, which must not reach NumPy."""
 
 
-def _strict_loader() -> type:
-    """PyYAML's safe loader, stricter where a calibration file is concerned: a key given twice in one mapping
-    is an error (YAML would keep the last silently), and a scalar its constructor cannot take (a date
-    2001-13-45, an integer of thousands of digits) is a YAML error at its line, not a ValueError."""
+def strict_yaml_loader() -> type:
+    """PyYAML's safe loader, stricter where a settings file (a calibration, a sweep) is concerned: a key given
+    twice in one mapping is an error (YAML would keep the last silently), and a scalar its constructor cannot
+    take (a date 2001-13-45, an integer of thousands of digits) is a YAML error at its line, not a ValueError."""
     import yaml
 
     class Loader(yaml.SafeLoader):
@@ -81,7 +81,7 @@ def read_yaml(path: Path, what: str) -> dict[str, Any]:
     if text.startswith("%YAML:"):
         text, skipped = (text.split("\n", 1)[1] if "\n" in text else ""), 1
     try:
-        data = yaml.load(text, Loader=_strict_loader())  # a SafeLoader subclass: no arbitrary objects
+        data = yaml.load(text, Loader=strict_yaml_loader())  # a SafeLoader subclass: no arbitrary objects
     except RecursionError:  # PyYAML composes nested collections recursively
         raise file_error(path, f"nested too deeply to be a {what}") from None
     except yaml.YAMLError as err:

@@ -587,8 +587,11 @@ def parse_yaml(text: str, path: Path) -> Any:
     """The mapping of a YAML sweep file, or a one-line error naming the file."""
     import yaml
 
+    from hippo_nav.datasets.common import strict_yaml_loader
+
     try:
-        return yaml.safe_load(text)
+        # A key given twice is an error: YAML would keep the last, and the sweep run what was not meant.
+        return yaml.load(text, Loader=strict_yaml_loader())  # a SafeLoader subclass: no arbitrary objects
     except RecursionError:
         raise HippoNavError(f"{path}: nested too deeply (at most {MAX_NESTING} levels)") from None
     except yaml.YAMLError as err:
