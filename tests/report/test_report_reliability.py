@@ -212,6 +212,19 @@ def test_sweeps_of_other_base_configs_or_frame_ranges_are_not_pooled(tmp_path):
     assert all(set(r.axes) == {"sequence", "odometry", "lesion", "seed"} for r in alone)
 
 
+def test_a_trajectory_cut_at_a_line_is_left_out_not_scored(tmp_path):
+    runs = tmp_path / "runs"
+    good, cut = _make_runs(runs, 2)
+    pose = "1 0 0 {x} 0 1 0 0 0 0 1 {z}\n"
+    for folder, kept in ((good, 10), (cut, 6)):
+        (folder / "trajectory_vo.kitti.txt").write_text("".join(pose.format(x=i, z=0) for i in range(10)))
+        neural = "".join(pose.format(x=i, z=0.1 * i) for i in range(10)).splitlines(keepends=True)[:kept]
+        (folder / "trajectory_neural.kitti.txt").write_text("".join(neural))
+    rows, skipped = collect([runs])
+    assert [r.folder for r in rows] == [good] and rows[0].values["pi_error_2d_m"] is not None
+    assert [s.folder for s in skipped] == [cut] and "6 poses against 10" in skipped[0].reason
+
+
 def test_an_earlier_run_set_aside_by_overwrite_is_not_a_run_of_its_own(tmp_path):
     runs = tmp_path / "runs"
     (run,) = _make_runs(runs, 1)

@@ -559,6 +559,12 @@ def path_integration_error_m(folder: Path) -> float | None:
         raise RunFileError(str(err)) from None
     except OSError as err:
         raise _bad(Path(err.filename or files[0]), None, f"cannot read it ({err.strerror or err})") from None
+    if len(odometry) != len(neural):  # one run writes both, a pose a frame: one of them was cut short
+        raise _bad(
+            files[1],
+            None,
+            f"{len(neural)} poses against {len(odometry)} in {files[0].name}: one of them is cut short",
+        )
     try:
         value = ate_rmse(odometry, neural, planar=True, align="se3")
     except (HippoNavError, ValueError, np.linalg.LinAlgError):
