@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from hippo_nav.io import read_kitti_poses
 from hippo_nav.sweep import build_space
-from hippo_nav.sweep.worker import SESSION_TOKEN, execute_run
+from hippo_nav.sweep.worker import SESSION_TOKEN, StopWhenAsked, execute_run
 from hippo_nav.synthetic import demo_sequence
 
 pytestmark = pytest.mark.usefixtures("thread_limits_restored")
@@ -44,6 +44,32 @@ def test_drift_and_a_replayed_file_run_and_their_manifest_says_what_ran(tmp_path
         json.loads(p.read_text())["dataset"]["checksum"]["sha256"] for p in out.glob("runs/*/manifest.json")
     }
     assert len(checksums) == 1
+
+
+def test_an_interrupted_rerun_of_a_whole_run_leaves_no_part_beside_it(tmp_path, monkeypatch):
+    """A run done under another config is redone; stopped before its last frame, `run` keeps the whole earlier
+    run and writes the part beside it. In a sweep that part would sit in runs/ as a run of its own: it goes,
+    the manifest says interrupted, and the earlier run's files stay."""
+    spec = build_space(dataset={"stop": 12}, no_figures=True).runs()[0]
+    out = tmp_path / "sweep"
+    out.mkdir()
+    (out / SESSION_TOKEN).write_text("s1\n")
+    assert execute_run(spec, str(out), "s1", cpus=1)["manifest"]["status"] == "done"
+    folder = out / "runs" / spec.run_id
+    before = (folder / "metrics.json").read_bytes()
+    frames = []
+
+    def stop_at_the_fifth_frame(self, event) -> None:
+        frames.append(event)
+        if len(frames) == 5:
+            self.signal = "SIGINT"
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(StopWhenAsked, "on_frame", stop_at_the_fifth_frame)
+    outcome = execute_run(spec, str(out), "s1", cpus=1, stop=object())
+    assert outcome["manifest"]["status"] == "interrupted"
+    assert [p.name for p in (out / "runs").iterdir()] == [spec.run_id]
+    assert (folder / "metrics.json").read_bytes() == before
 
 
 def test_a_worker_that_cannot_see_the_sweep_folder_sends_the_files_back(tmp_path):

@@ -195,6 +195,16 @@ def _run(
             overwrite=True, dataset_kind=dataset.kind, dataset_options=dict(dataset.options), observers=observers,
         )  # fmt: skip
         manifest["dataset"]["checksum"] = dataset_checksum(result)
+        beside = result.out_dir
+        if beside is not None and Path(beside).resolve() != dest.resolve():
+            # Stopped before its last frame while the folder held a whole earlier run (done under another
+            # config, which the plan redoes): `run` kept that run and wrote this part beside it. A sweep
+            # reruns an interrupted run from its start, so the part would only sit in `runs/` as a run of its
+            # own; the manifest says the run is interrupted, and the next resume runs it.
+            shutil.rmtree(beside, ignore_errors=True)
+            log.warning(
+                "the attempt's part-written results (%s) are removed: the run is redone on resume", beside
+            )
         if result.interrupted:
             by = _stopped_by(stopper, result.metrics.get("interrupted_by"))
             manifest.update(
