@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 from hippo_nav.io import read_kitti_poses
-from hippo_nav.sweep import build_space
+from hippo_nav.sweep import build_space, plan
 from hippo_nav.sweep.worker import SESSION_TOKEN, StopWhenAsked, execute_run
 from hippo_nav.synthetic import demo_sequence
 
@@ -70,6 +70,25 @@ def test_an_interrupted_rerun_of_a_whole_run_leaves_no_part_beside_it(tmp_path, 
     assert outcome["manifest"]["status"] == "interrupted"
     assert [p.name for p in (out / "runs").iterdir()] == [spec.run_id]
     assert (folder / "metrics.json").read_bytes() == before
+
+
+@pytest.mark.parametrize("damage", ["cut frames.csv", "lose the map", "cut a trajectory"])
+def test_a_finished_run_whose_files_were_damaged_since_is_redone(tmp_path, damage):
+    spec = build_space(dataset={"stop": 8}, no_figures=True).runs()[0]
+    out = tmp_path / "sweep"
+    out.mkdir()
+    (out / SESSION_TOKEN).write_text("s1\n")
+    manifest = execute_run(spec, str(out), "s1", cpus=1)["manifest"]
+    assert {"frames.csv", "memory/map.bin", "trajectory_corrected.kitti.txt"} <= set(manifest["files"])
+    assert [r.run_id for r in plan([spec], out).done] == [spec.run_id]
+    folder = out / "runs" / spec.run_id
+    if damage == "lose the map":
+        (folder / "memory" / "map.bin").unlink()
+    else:
+        name = "frames.csv" if damage == "cut frames.csv" else "trajectory_corrected.kitti.txt"
+        lines = (folder / name).read_text().splitlines(keepends=True)
+        (folder / name).write_text("".join(lines[:-2]))  # cut at a line boundary: still parses
+    assert [r.run_id for r in plan([spec], out).todo] == [spec.run_id]
 
 
 def test_a_worker_that_cannot_see_the_sweep_folder_sends_the_files_back(tmp_path):

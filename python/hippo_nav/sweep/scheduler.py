@@ -189,7 +189,22 @@ def finished(folder: Path, manifest: dict[str, Any] | None) -> bool:
         return False
     dataset = manifest.get("dataset")
     checksum = dataset.get("checksum") if isinstance(dataset, dict) else None
-    return not (isinstance(checksum, dict) and checksum.get("frames") != frames)
+    if isinstance(checksum, dict) and checksum.get("frames") != frames:
+        return False
+    # Every result file the run wrote, at the size it had (manifests of before this check have no list).
+    files = manifest.get("files")
+    if files is None:
+        return True
+    if not isinstance(files, dict):
+        return False
+    for name, size in files.items():
+        path = folder / str(name)
+        try:
+            if path.is_symlink() or not path.is_file() or path.stat().st_size != size:
+                return False
+        except OSError:
+            return False
+    return True
 
 
 def plan(runs: list[RunSpec], out: Path, retry_failed: bool = False) -> Plan:

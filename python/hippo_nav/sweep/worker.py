@@ -156,6 +156,8 @@ def execute_run(spec: RunSpec, sweep_dir: str, session: str, cpus: int, stop: An
     stopper = None if stop is None else StopWhenAsked(stop)
     with _run_log(dest / RUN_LOG):
         _run(spec, dest, manifest, [] if stopper is None else [stopper], stopper)
+    if manifest["status"] == "done":
+        manifest["files"] = result_file_sizes(dest)
     manifest["ended_utc"] = utc_now()
     manifest["wall_s"] = time.perf_counter() - clock
     manifest["peak_rss_mb"] = memory.peak_mb()
@@ -167,6 +169,21 @@ def execute_run(spec: RunSpec, sweep_dir: str, session: str, cpus: int, stop: An
         }
         shutil.rmtree(dest, ignore_errors=True)
     return outcome
+
+
+def result_file_sizes(folder: Path) -> dict[str, int]:
+    """Each result file of a finished run (its path in the folder) and its size in bytes: what the resume
+    checks, so that a file lost or cut short since has the run redone. The sweep's own files (the manifest,
+    the log, the mark) and hidden ones are not results."""
+    own = {MANIFEST, RUN_LOG, RESULTS_MARK}
+    return {
+        path.relative_to(folder).as_posix(): path.stat().st_size
+        for path in sorted(folder.rglob("*"))
+        if path.is_file()
+        and not path.is_symlink()
+        and path.name not in own
+        and not any(part.startswith(".") for part in path.relative_to(folder).parts)
+    }
 
 
 def _run(
