@@ -30,6 +30,7 @@ import numpy as np
 from hippo_nav._core import HippoNavError
 
 __all__ = [
+    "RESULTS_MARK",
     "WriteError",
     "atomic_folder",
     "atomic_path",
@@ -213,6 +214,11 @@ def _fresh_folder(path: Path, tag: str) -> Path:
         except OSError as err:
             raise WriteError(path, _reason(err)) from None
     raise WriteError(path, "no free temporary name beside it")
+
+
+RESULTS_MARK = ".hippo_nav_results"
+"""Written into a results folder before the first frame: `--overwrite` replaces only a folder that has it, so
+a folder that was never a results folder (a user's own config.json, frames.csv) is never touched."""
 
 
 def output_folder(out: str | Path, holds: str) -> Path:

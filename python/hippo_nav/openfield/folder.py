@@ -7,8 +7,7 @@ import json
 from pathlib import Path
 
 from hippo_nav._core import HippoNavError
-from hippo_nav.io.atomic import output_folder, write_text
-from hippo_nav.pipeline.results import RESULTS_MARK
+from hippo_nav.io.atomic import RESULTS_MARK, output_folder, write_text
 from hippo_nav.recording import Recording
 
 __all__ = ["SESSION_FILES", "SessionFolder", "analyse_session"]

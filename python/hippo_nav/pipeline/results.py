@@ -61,7 +61,7 @@ import numpy as np
 
 from hippo_nav._core import HippoNavError
 from hippo_nav.io import write_kitti_poses, write_tum
-from hippo_nav.io.atomic import WriteError, open_atomic, open_lock, write_text
+from hippo_nav.io.atomic import RESULTS_MARK, WriteError, open_atomic, open_lock, write_text
 from hippo_nav.io.errors import os_error_words
 from hippo_nav.map import ExperienceMap
 from hippo_nav.memory import MEMORY_FOLDER, SavedMemory, write_memory
@@ -86,9 +86,6 @@ RESULT_PATTERNS = (
     "neural_state_*.png",
 )
 """What a run writes into its results folder (and what `--overwrite` clears, nothing else)."""
-RESULTS_MARK = ".hippo_nav_results"
-"""Written into a results folder before the first frame: `--overwrite` replaces only a folder that has it, so
-a folder that was never a results folder (a user's own config.json, frames.csv) is never touched."""
 PREVIOUS_RESULTS = ".hippo_nav_previous"
 """With `--overwrite`, the earlier run's files are moved here before the first frame (`PreviousResults`), not
 deleted: the map a run reads (`--map X --out X`) and the earlier results survive until the new ones are
