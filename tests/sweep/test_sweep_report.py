@@ -67,6 +67,11 @@ def test_statistics_over_seeds():
     assert s.ci95 == pytest.approx(4.303 / math.sqrt(3))
     assert stats([5.0]).ci95 is None and stats([None]).mean is None
     assert t_975(31) == pytest.approx(2.0395, abs=1e-3) and t_975(200) == pytest.approx(1.9719, abs=1e-3)
+    # Numbers near the float's limit (a run that diverged) give finite statistics, without numpy's warning.
+    with np.errstate(all="raise"):
+        huge = stats([1e300, 3e300])
+    assert huge.mean == pytest.approx(2e300) and huge.std == pytest.approx(math.sqrt(2) * 1e300)
+    assert math.isfinite(huge.ci95)
 
 
 def test_a_report_of_nothing_or_an_unknown_metric_is_one_clear_line(plain_runs, tmp_path, capsys):

@@ -60,8 +60,11 @@ def stats(values: Sequence[float | None]) -> Stats:
         return Stats(None, None, 0, None)
     if n == 1:
         return Stats(float(numbers[0]), None, 1, None)
-    std = float(np.std(numbers, ddof=1))
-    return Stats(float(numbers.mean()), std, n, t_975(n - 1) * std / math.sqrt(n))
+    # In units of the largest: a number near the float's limit (a run that diverged) squares to infinity.
+    scale = float(np.abs(numbers).max()) or 1.0
+    unit = numbers / scale
+    std = float(np.std(unit, ddof=1)) * scale
+    return Stats(float(unit.mean()) * scale, std, n, t_975(n - 1) * std / math.sqrt(n))
 
 
 def value_columns(rows: Sequence[RunRow]) -> list[str]:
