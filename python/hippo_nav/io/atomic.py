@@ -93,8 +93,7 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     do), for writers that want a path (matplotlib); renamed over `path` when the block ends without an
     error, removed otherwise. The temporary file exists (empty, created exclusively) when the block starts."""
     path = Path(path)
-    fd, tmp = _temporary(path, path.suffix)
-    os.close(fd)
+    tmp = fresh_file_beside(path, path.suffix)
     try:
         try:
             yield tmp

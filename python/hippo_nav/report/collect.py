@@ -255,7 +255,11 @@ def _row(folder: Path, sweep: str) -> RunRow:
     return row
 
 
-_OWN_AXES = ("seed", "vo.seed")  # the seed is an axis of its own (vo.seed follows it), as are the lesions
+def _own_axis(key: str) -> bool:
+    """A config key that is an axis of its own: the seed (vo.seed follows it) and the lesions."""
+    return key in ("seed", "vo.seed") or key.startswith("lesions.")
+
+
 _DATASET_FLAGS = {
     "path": "dataset",
     "kind": "dataset_kind",
@@ -270,11 +274,7 @@ def _sweep_setup(manifest: dict[str, Any], path: Path) -> dict[str, Any] | None:
     config, dataset = manifest.get("config"), manifest.get("dataset")
     if not isinstance(config, dict) or not isinstance(dataset, dict):
         return None
-    setup = {
-        key: value
-        for key, value in dotted(config).items()
-        if key not in _OWN_AXES and not key.startswith("lesions.")
-    }
+    setup = {key: value for key, value in dotted(config).items() if not _own_axis(key)}
     for name, flag in _DATASET_FLAGS.items():
         setup[flag] = dataset.get(name)
     for key, value in setup.items():
@@ -466,9 +466,7 @@ def _plain_axes(folder: Path, metrics: dict[str, Any]) -> dict[str, Any]:
     if config is not None:
         defaults = dotted(resolved_config_dict(PipelineConfig()))
         for key, value in dotted(config).items():
-            # The seed and the lesions are axes of their own (vo.seed follows the seed).
-            own_axis = key in ("seed", "vo.seed") or key.startswith("lesions.")
-            if key in defaults and value != defaults[key] and not own_axis:
+            if key in defaults and value != defaults[key] and not _own_axis(key):
                 _check_axis_value(value, config_path, key)
                 axes[key] = value
     axes["seed"] = seed
