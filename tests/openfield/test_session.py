@@ -140,13 +140,33 @@ def test_a_csv_trajectory_drives_a_session(tmp_path):
         ("t,x,y\n0,0,0\n0,1,0\n", "increasing"),
         ("t,x,y\n0,zero,0\n1,1,0\n", "not a number"),
         ("t,x,y\n0,0,0\n1e9,1,1\n", "more than a session"),  # milliseconds, or a typo: 373 GiB of steps
+        ("t,x,y\n0,0,0\n\n1,1\n2,2,0\n", r"line 4 has 2 values where the header names 3$"),
+        ("t,x,y\n0,0,0\n1,1,0,7\n", "line 3 has 4 values"),  # not silently the first three
+        (
+            "t,x,y\n0,0,0\n0.5,0.5,0\n1,1",
+            r"line 4 has 2 values .*bad.csv does not end with a line break: was it cut",
+        ),
+        ("t,x,y\n0,0,0\n1,1,0\n\xff", "not UTF-8"),
     ],
 )
 def test_a_bad_trajectory_csv_says_what_is_wrong(tmp_path, text, words):
     csv = tmp_path / "bad.csv"
-    csv.write_text(text)
+    csv.write_bytes(text.encode("latin-1") if "\xff" in text else text.encode())
     with pytest.raises(HippoNavError, match=words):
         trajectory_from_csv(csv, 0.02)
+
+
+def test_a_trajectory_cut_inside_its_last_number_is_named_in_the_error_it_causes(tmp_path):
+    """A file cut mid-write inside its last number still parses (10.56 → 1): the jump it makes is refused
+    by the networks, and the error says the file may have been cut short; a whole file is not suspected."""
+    rows = "".join(f"{0.02 * i:.2f},0,{10.5 + 0.01 * i:.2f}\n" for i in range(40))
+    whole, cut = tmp_path / "whole.csv", tmp_path / "cut.csv"
+    whole.write_text("t,x,y\n" + rows + "0.80,0,1\n")
+    cut.write_text("t,x,y\n" + rows + "0.80,0,1")
+    with pytest.raises(HippoNavError, match=r"outside the range.*cut\.csv does not end with a line break"):
+        record_session(_short(duration_s=0.8), trajectory_from_csv(cut, 0.02))
+    with pytest.raises(HippoNavError, match=r"outside the range the network can represent \(.*\)$"):
+        record_session(_short(duration_s=0.8), trajectory_from_csv(whole, 0.02))
 
 
 def test_a_recording_round_trips_and_a_truncated_file_is_refused(session: Recording, tmp_path):

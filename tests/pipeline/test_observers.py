@@ -83,3 +83,26 @@ def test_each_event_carries_the_previous_frames_stage_times(demo):
     for position in range(1, 5):
         times = keeper.events[position].previous_stage_s
         assert times == {stage: s[position - 1] for stage, s in result.record.stage_s.items()}
+
+
+class FailsAtTheEnd(Keeper):
+    """An observer whose last write finds the disk full."""
+
+    def on_finish(self, result: RunResult) -> None:
+        raise OSError(28, "No space left on device")
+
+
+def test_an_observer_failing_at_the_end_keeps_the_results_and_lets_the_others_finish(demo, tmp_path):
+    """The results are written before the observers finish: one that fails must not stop the others (the
+    Rerun recording beside a video on a full disk) nor hide the results, which the error returns."""
+    from hippo_nav.pipeline.observers import ObserverError
+
+    keeper = Keeper(read=set())
+    config = config_from_dict({**QUIET, "output": {"figures": False}})
+    out = tmp_path / "run"
+    with pytest.raises(
+        ObserverError, match=r"FailsAtTheEnd failed at the end.*No space.*written to .*run\)"
+    ) as err:
+        Pipeline(Frames(demo, 5), config, observers=[FailsAtTheEnd(read=set()), keeper]).run(out)
+    assert keeper.result is err.value.result and err.value.result.metrics["frames"] == 5
+    assert (out / "metrics.json").is_file()

@@ -339,6 +339,27 @@ def test_a_video_that_cannot_finish_does_not_hide_where_the_results_were_saved(
     assert json.loads(capsys.readouterr().out)["results"] == str(rescued)
 
 
+def test_a_video_that_cannot_finish_after_a_run_leaves_the_json_whole(tmp_path, monkeypatch, capsys):
+    """The run finished and wrote its results; only the video's close failed (a full disk). A script reading
+    --json still gets the results folder and the summary, with the video's error and exit 2."""
+
+    def video_fails(self) -> None:
+        raise HippoNavError("cannot write mapping.mp4: the disk is full")
+
+    monkeypatch.setattr(VideoObserver, "close", video_fails)
+    out = tmp_path / "run"
+    args = ["run", "--out", str(out), "--no-progress", "--no-figures", "--stop", "4", "--video"]
+    assert main([*args, "--json"]) == 2
+    captured = capsys.readouterr()
+    report = json.loads(captured.out)
+    assert report["exit_reason"] == "viewer_not_written" and report["exit_code"] == 2
+    assert report["results"] == str(out) and report["summary"]["frames"] == 4
+    assert "the disk is full" in report["error"] and "results are written" in report["error"]
+    assert "video" not in report and (out / "metrics.json").is_file()
+    assert main([*args, "--overwrite"]) == 2  # without --json: the one line naming where the results are
+    assert f"results are written to {out}" in capsys.readouterr().err
+
+
 def test_a_program_on_the_viewers_port_that_never_answers_does_not_hold_the_run(monkeypatch, caplog):
     """Another program holding port 9876 takes the connection and never answers: the close (and Rerun's
     exit handler, which waits for the same connection) must not hold a finished run for ever."""

@@ -11,6 +11,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from hippo_nav._core import HippoNavError
 from hippo_nav.cli.common import (
     MAX_FRAME,
     MAX_SEED,
@@ -22,7 +23,6 @@ from hippo_nav.cli.common import (
 )
 
 if TYPE_CHECKING:
-    from hippo_nav._core import HippoNavError
     from hippo_nav.pipeline import RunResult
     from hippo_nav.viewer.rerun import RerunObserver
     from hippo_nav.viewer.video import VideoObserver
@@ -150,8 +150,8 @@ def _add_viewers(viewers: argparse._ArgumentGroup) -> None:
 
 
 def command(args: argparse.Namespace) -> int:
-    from hippo_nav._core import HippoNavError
     from hippo_nav.pipeline import load_config, run
+    from hippo_nav.pipeline.observers import ObserverError
 
     if args.dataset is None and args.sequence is not None:
         raise HippoNavError(
@@ -194,8 +194,9 @@ def command(args: argparse.Namespace) -> int:
                 memory_from=args.memory_from,
             )
         except HippoNavError as err:
-            # Stopped by an unreadable frame mid-run, or a results folder that stopped taking files: the
-            # results exist (`err.result`). Without --json (or without results) `main` prints the one line.
+            # Stopped by an unreadable frame mid-run, a results folder that stopped taking files, or a viewer
+            # that could not finish after the results were written: the results exist (`err.result`).
+            # Without --json (or without results) `main` prints the one line.
             # That error is the one to report: a viewer or video that cannot finish too (the same full disk)
             # only adds a warning, or its error would hide where the results were saved.
             _close_after_failure(observers)
@@ -212,7 +213,11 @@ def command(args: argparse.Namespace) -> int:
                     observer.close()
             except HippoNavError as err:
                 _close_after_failure(observers)
-                raise HippoNavError(f"{err} (the run's results are written, in {result.out_dir})") from err
+                failure = ObserverError(f"{err} (the run's results are written to {result.out_dir})")
+                if not args.json:
+                    raise failure from err
+                # A script reading --json still gets the run's results and summary: only a viewer failed.
+                print(f"hippo-nav: error: {failure}", file=sys.stderr)
     if args.json:
         return _print_json(args, result, failure)
     return _print_result(args, result)
@@ -242,6 +247,7 @@ def _print_json(args: argparse.Namespace, result: RunResult, failure: HippoNavEr
     `failure`: the error that stopped a run whose results exist (an unreadable frame mid-run:
     "stopped_by_error"; a results folder that stopped taking files: "not_written", `results` is then the
     folder they were written to instead, or null)."""
+    from hippo_nav.pipeline.observers import ObserverError
     from hippo_nav.pipeline.results import ResultsNotWrittenError, json_safe
 
     results: Path | str | None = result.out_dir if result.out_dir is not None else args.out
@@ -249,6 +255,8 @@ def _print_json(args: argparse.Namespace, result: RunResult, failure: HippoNavEr
         reason, code, signal = _exit(result)
     elif isinstance(failure, ResultsNotWrittenError):
         reason, code, signal, results = "not_written", 2, None, failure.rescued_to
+    elif isinstance(failure, ObserverError):
+        reason, code, signal = "viewer_not_written", 2, None
     else:
         reason, code, signal = "stopped_by_error", 2, None
     report: dict[str, Any] = {"exit_code": code, "exit_reason": reason}
@@ -257,9 +265,13 @@ def _print_json(args: argparse.Namespace, result: RunResult, failure: HippoNavEr
     if failure is not None:
         report["error"] = str(failure)  # the words of the one line on stderr
     report["results"] = None if results is None else str(results)
-    if args.video and reason != "not_written":
+    if args.video and reason not in ("not_written", "viewer_not_written"):
         report["video"] = str(Path(args.out) / "mapping.mp4")
-    if args.rerun and not args.rerun.startswith("rerun") and reason != "not_written":
+    if (
+        args.rerun
+        and not args.rerun.startswith("rerun")
+        and reason not in ("not_written", "viewer_not_written")
+    ):
         report["rerun_recording"] = args.rerun
     report["summary"] = _summary(result.metrics)
     errors = result.metrics.get("errors") or {}
@@ -314,7 +326,6 @@ def _default_out(args: argparse.Namespace, kind: str | None) -> str:
 
 def _observers(args: argparse.Namespace) -> list[RerunObserver | VideoObserver]:
     """The viewers asked for: `--rerun [FILE]` and `--video` (mapping.mp4 in --out)."""
-    from hippo_nav._core import HippoNavError
 
     observers: list[RerunObserver | VideoObserver] = []
     if args.video_every < 1:
@@ -339,7 +350,6 @@ def _replay(args: argparse.Namespace) -> Callable[[Any], Any] | None:
     """The `--odometry` replay as the callable `run()` aligns with the opened dataset, or None.
 
     The file is read (and every line checked) here, before the dataset is opened or rendered."""
-    from hippo_nav._core import HippoNavError
 
     if args.odometry is None:
         for flag in ("odometry_format", "odometry_align"):

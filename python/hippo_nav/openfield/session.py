@@ -173,7 +173,9 @@ def record_session(
         try:
             readout = engine.step(float(yaw_rate[i]), float(speed[i]), traj.step_dt_s, view)
         except HippoNavError as err:
-            raise HippoNavError(f"step {i} (t = {now:.2f} s) of {traj.source}: {err}") from None
+            raise HippoNavError(
+                f"step {i} (t = {now:.2f} s) of {traj.source}: {err}{traj.cut_short_hint}"
+            ) from None
         views.remember(engine, here, heading, float(now))
         if (i + 1) % every == 0:
             recorder.take((i + 1) // every, engine, readout)

@@ -45,6 +45,8 @@ class Trajectory:
     position_m: np.ndarray
     head_direction_rad: np.ndarray
     source: str
+    cut_short_hint: str = ""
+    """Words to add to an error the trajectory's values cause, when its file may have been cut short."""
 
     @property
     def step_dt_s(self) -> float:
@@ -136,14 +138,35 @@ def trajectory_from_csv(path: str | Path, step_dt_s: float) -> Trajectory:
     path = Path(path)
     try:
         with path.open(newline="") as f:
-            rows = list(csv.DictReader(f))
-    except OSError as err:
-        raise HippoNavError(f"{path}: cannot read the trajectory ({err.strerror or err})") from None
+            reader = csv.DictReader(f)
+            rows, lines = [], []
+            for row in reader:
+                rows.append(row)
+                lines.append(reader.line_num)
+        with path.open("rb") as raw:
+            size = raw.seek(0, 2)
+            ends_with_line_break = size == 0 or raw.seek(size - 1) >= 0 and raw.read(1) in (b"\n", b"\r")
+    except (OSError, UnicodeDecodeError) as err:
+        why = err.strerror if isinstance(err, OSError) else "not UTF-8 text"
+        raise HippoNavError(f"{path}: cannot read the trajectory ({why or err})") from None
     need = {"t", "x", "y"}
     if not rows or not need <= set(rows[0]):
         raise HippoNavError(
             f"{path}: a trajectory CSV needs a header with columns t, x, y (and optionally heading)"
         )
+    # A file cut mid-write ends inside its last line: no line break, and perhaps a short row or a number
+    # cut to fewer digits (which parses, so the hint goes with any error the values cause later).
+    hint = "" if ends_with_line_break else f" ({path.name} does not end with a line break: was it cut short?)"
+    columns = len(reader.fieldnames or ())
+    for n, row in enumerate(rows):
+        extra = row.pop(None, None)  # DictReader's key for values past the header
+        values = sum(v is not None for v in row.values()) + len(extra or ())
+        if values != columns:
+            cut = hint if n == len(rows) - 1 else ""
+            raise HippoNavError(
+                f"{path}: line {lines[n]} has {values} value{'s' * (values != 1)} where the header names "
+                f"{columns}{cut}"
+            )
     try:
         table = np.array([[float(r[c]) for c in ("t", "x", "y")] for r in rows])
         heading = np.array([float(r["heading"]) for r in rows]) if "heading" in rows[0] else None
@@ -167,7 +190,7 @@ def trajectory_from_csv(path: str | Path, step_dt_s: float) -> Trajectory:
         if not np.isfinite(heading).all():
             raise HippoNavError(f"{path}: the heading column has a value that is not finite")
         heading = np.interp(time, t - t[0], np.unwrap(heading))
-    return Trajectory(time, position, smooth_heading(heading, step_dt_s), f"csv {path.name}")
+    return Trajectory(time, position, smooth_heading(heading, step_dt_s), f"csv {path.name}", hint)
 
 
 def _smoothed_motion_direction(position_m: np.ndarray, step_dt_s: float) -> np.ndarray:

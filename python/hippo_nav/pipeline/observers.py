@@ -43,7 +43,12 @@ if TYPE_CHECKING:
     from hippo_nav.pipeline.records import RunResult
     from hippo_nav.system.slam import SlamSystem
 
-__all__ = ["FrameEvent", "NetworkActivity", "Observer", "RunInfo"]
+__all__ = ["FrameEvent", "NetworkActivity", "Observer", "ObserverError", "RunInfo"]
+
+
+class ObserverError(HippoNavError):
+    """An observer could not finish (a video or recording on a full disk) after the run's results were
+    written; `result` holds the run's `RunResult`."""
 
 
 class Observer(Protocol):

@@ -39,7 +39,7 @@ from hippo_nav.pipeline.frontend import (
     OdometryGuard,
     resolved_frontend_params,
 )
-from hippo_nav.pipeline.observers import FrameEvent, Observer, RunInfo
+from hippo_nav.pipeline.observers import FrameEvent, Observer, ObserverError, RunInfo
 from hippo_nav.pipeline.records import RunRecord, RunRecorder, RunResult
 from hippo_nav.pipeline.results import PreviousResults, RunFacts
 from hippo_nav.pipeline.sessions import path_to_save, sessions_metrics, sessions_track
@@ -200,16 +200,10 @@ class Pipeline:
             record.cpu_s = time.process_time() - started_cpu
             self._recorder.final_snapshot(self.system.engine)
         result = self._finish(out_dir, interrupted, None if stopped_by is None else str(stopped_by), signals)
-        try:
-            with signals.interruptible():  # a viewer's flush may wait on another program: a signal cuts it
-                for observer in self.observers:
-                    observer.on_finish(result)
-        except KeyboardInterrupt:  # the results are written; only a viewer's last frame is lost
-            log.warning("the viewers' last frame interrupted; the results are written")
-            result.metrics["interrupted_by"] = (
-                result.metrics.get("interrupted_by") or signals.caught or "SIGINT"
-            )
+        observer_failed = self._finish_observers(result, signals)
         if stopped_by is not None:
+            if observer_failed is not None:  # the frame that stopped the run is the error to report
+                log.warning("warning: %s", observer_failed)
             where = "returned in the exception's `result`"
             if result.out_dir is not None:
                 where = f"written to {result.out_dir}"
@@ -220,7 +214,40 @@ class Pipeline:
             )
             error.result = result  # type: ignore[attr-defined]
             raise error
+        if observer_failed is not None:
+            where = "returned in the exception's `result`"
+            if result.out_dir is not None:
+                where = f"written to {result.out_dir}"
+            failure = ObserverError(f"{observer_failed} (the run's results are {where})")
+            failure.result = result  # type: ignore[attr-defined]
+            raise failure from observer_failed
         return result
+
+    def _finish_observers(self, result: RunResult, signals: _Signals) -> Exception | None:
+        """Every observer's `on_finish`, each one even when another failed (a full disk stops a video, and
+        the Rerun recording beside it must still be finished); the first failure, for the caller to raise
+        once the run's own outcome is settled."""
+        failed: Exception | None = None
+        for observer in self.observers:
+            try:
+                with (
+                    signals.interruptible()
+                ):  # a viewer's flush may wait on another program: a signal cuts it
+                    observer.on_finish(result)
+            except KeyboardInterrupt:  # the results are written; only a viewer's last frame is lost
+                log.warning("the viewers' last frame interrupted; the results are written")
+                result.metrics["interrupted_by"] = (
+                    result.metrics.get("interrupted_by") or signals.caught or "SIGINT"
+                )
+                break
+            except Exception as err:  # noqa: BLE001 - the results are written; the caller raises it after
+                if not isinstance(err, HippoNavError):
+                    err = HippoNavError(f"observer {type(observer).__name__} failed at the end: {err!r}")
+                if failed is None:
+                    failed = err
+                else:
+                    log.warning("warning: %s", err)
+        return failed
 
     # ----------------------------------------------------------------------------------------------
     def _process(self, front: FrontResult, front_end: FrontEnd, info: RunInfo) -> None:
