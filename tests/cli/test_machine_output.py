@@ -152,6 +152,16 @@ def test_config_check_a_bad_file_is_one_line_and_exit_2(tmp_path, capsys):
     assert "bad.json" in lines[0] and "injection.decay_per_frame" in lines[0]
 
 
+def test_config_check_reads_the_vocabulary_the_config_names(tmp_path, capsys):
+    """`run` would refuse a missing or unreadable vocabulary file: `--check` must not call it valid."""
+    for vocabulary, phrase in ((tmp_path / "none.voc", "none.voc: cannot read the vocabulary"), (tmp_path, "")):
+        config = tmp_path / "words.json"
+        config.write_text(json.dumps({"view_words": {"vocabulary": str(vocabulary)}}))
+        assert main(["config", "--check", str(config)]) == 2
+        err = capsys.readouterr().err
+        assert len(err.strip().splitlines()) == 1 and phrase in err and "valid" not in err
+
+
 def test_config_show_fills_in_the_defaults(tmp_path, capsys):
     partial = tmp_path / "partial.json"
     partial.write_text('{"seed": 5, "lesions": {"dorsal": true}}')

@@ -355,3 +355,19 @@ def test_not_a_sequence(tmp_path: Path, written: SyntheticEuroc) -> None:
         (tmp_path / "two" / name / "mav0" / "cam0").mkdir(parents=True)
     with pytest.raises(DatasetError, match="holds several ASL sequences; .*: A, B"):
         open_dataset(tmp_path / "two")
+
+
+def test_timestamps_in_milliseconds_are_refused_not_read_as_frames_100_ns_apart(
+    euroc: SyntheticEuroc,
+) -> None:
+    """data.csv holds nanoseconds; integer milliseconds put the frames 100 ns apart, and the VO rejected every
+    step as impossibly fast: a trajectory of zeros, exit 0."""
+    for camera in ("cam0", "cam1"):
+        csv = euroc.root / "mav0" / camera / "data.csv"
+        lines = csv.read_text().splitlines()
+        rows = [line.split(",") for line in lines[1:]]
+        csv.write_text("\n".join([lines[0]] + [f"{int(t) // 10**6},{name}" for t, name in rows]) + "\n")
+    with pytest.raises(
+        DatasetError, match=r"cam0/data\.csv: the timestamps advance by a median 1e-07 s.*another unit"
+    ):
+        EurocStereo(euroc.root)

@@ -168,3 +168,50 @@ def test_missing_parts_and_bad_images(folder: Path, tmp_path: Path) -> None:
     (tmp_path / "empty" / "left").mkdir(parents=True)
     with pytest.raises(DatasetError, match="left: no images"):
         StereoFolder(tmp_path / "empty")
+
+
+def test_an_image_missing_on_each_side_is_refused_not_paired_across_frames(folder: Path) -> None:
+    """One image gone from each side keeps the counts equal: pairing by position would put frames of two
+    moments together (a wrong depth for every frame between them)."""
+    (folder / "left" / "3.png").unlink()
+    (folder / "right" / "9.png").unlink()
+    with pytest.raises(DatasetError, match=r"image 2 of each is left/4\.png but right/3\.png.*left/ lacks"):
+        StereoFolder(folder)
+
+
+def test_names_numbered_by_each_cameras_clock_are_paired_by_position(folder: Path) -> None:
+    """Names that never agree (each camera's own timestamps) say nothing of a missing image."""
+    for k, image in enumerate(sorted((folder / "right").iterdir(), key=lambda p: int(p.stem))):
+        image.rename(folder / "right" / f"{5000 + 3 * k}.png")
+    assert len(StereoFolder(folder)) == N_FRAMES
+
+
+@pytest.mark.parametrize(
+    ("times_factor", "gt_factor", "phrase"),
+    [
+        (1e3, 1.0, r"look like milliseconds"),  # checked before trimming to the ground truth (1 frame left)
+        (1e-6, 1e-6, r"a camera taking 1e\+07 images a second"),  # milliseconds read as nanoseconds
+        (1.0, 1e9, r"ground_truth\.tum: its samples are a median 1e\+08 apart.*another unit"),
+    ],
+)
+def test_timestamps_in_another_unit_are_refused_before_the_ground_truth_trims_them(
+    folder: Path, rendered: KittiOdometry, times_factor: float, gt_factor: float, phrase: str
+) -> None:
+    stamps = (T0_S if gt_factor <= 1 else 0.0) + rendered.timestamps_s  # TUM allows ±1e11 s
+    np.savetxt(folder / "times.txt", stamps * times_factor, fmt="%.9g")
+    write_tum(folder / "ground_truth.tum", stamps * gt_factor, rendered.ground_truth())
+    with pytest.raises(DatasetError, match=phrase):
+        StereoFolder(folder)
+
+
+def test_calibration_keys_it_does_not_take_are_refused(folder: Path) -> None:
+    """The images must be rectified: a distortion given here would be dropped without a word, a typo
+    (`widht`) leave its check undone."""
+    calib = folder / "calibration.yaml"
+    text = calib.read_text()
+    calib.write_text(text + "k1: -0.3\nwidht: 64\n")
+    with pytest.raises(DatasetError, match=r"unknown key\(s\) k1, widht.*no distortion"):
+        StereoFolder(folder)
+    calib.write_text(text + "baseline: 0.12\n")
+    with pytest.raises(DatasetError, match="both baseline and baseline_m"):
+        StereoFolder(folder)

@@ -298,6 +298,26 @@ def test_calibration_and_encoding_errors(rendered: KittiOdometry, tmp_path: Path
     topics.write_text(f"left_topic: {LEFT}\nright_tpoic: {RIGHT}\n")
     with pytest.raises(DatasetError, match="topics.yaml: unknown key\\(s\\) right_tpoic"):
         open_dataset(bare, topics=topics)
+    # `rectified: 'false'` is a non-empty string, true to Python: raw images would go unrectified.
+    for text, phrase in (
+        (
+            f"left_topic: {LEFT}\nright_topic: {RIGHT}\nrectified: 'false'\n",
+            "rectified: 'false' is not true or false",
+        ),
+        (
+            f"left_topic: [{LEFT}]\nright_topic: {RIGHT}\n",
+            r"left_topic: \['/stereo/left/image_rect'\] is not a name",
+        ),
+        (
+            f"left_topic: {LEFT}\nright_topic: {RIGHT}\nground_truth: true\n",
+            "ground_truth: True is not a name",
+        ),
+    ):
+        topics.write_text(text)
+        with pytest.raises(DatasetError, match=phrase):
+            open_dataset(bare, topics=topics)
+    with pytest.raises(DatasetError, match="ROS bag option: rectified: 'no' is not true or false"):
+        open_dataset(bare, left_topic=LEFT, right_topic=RIGHT, rectified="no")
     deep = write_bag(tmp_path / "deep.bag", 1, rendered, left_encoding="mono16")
     with pytest.raises(DatasetError, match="image encoding 'mono16' is not supported"):
         open_dataset(deep, left_topic=LEFT, right_topic=RIGHT)

@@ -243,6 +243,73 @@ def test_textureless_sequences_are_reported(demo, tmp_path, caplog):
     assert any("too little usable texture" in r.message for r in caplog.records)
 
 
+def test_images_their_calibration_does_not_describe_stop_the_run_naming_the_sizes(demo):
+    """A dataset made in Python gave images transposed against its calibration: every frame's odometry
+    failed and the run ended with a trajectory of zeros and no error."""
+
+    class Transposed(Frames):
+        def __getitem__(self, i):
+            frame = super().__getitem__(i)
+            return type(frame)(frame.index, frame.timestamp_s, frame.left.T.copy(), frame.right.T.copy())
+
+    width, height = demo.calibration.image_size_px
+    with pytest.raises(
+        DatasetError, match=f"frame 0: image is {height}×{width} px but the calibration is for"
+    ):
+        Pipeline(Transposed(demo, 5), config_from_dict(QUIET)).run(None)
+
+
+def test_steps_rejected_as_too_fast_on_most_frames_are_reported(demo, caplog):
+    """Timestamps a hundred times too close (still above the 1 ms floor) make every step too fast for the
+    VO's limits: the run says to check the timestamps instead of ending on a trajectory of zeros silently."""
+    frames = Frames(demo, 12, timestamps_s=demo.timestamps_s[:12] / 50.0)
+    result = Pipeline(frames, config_from_dict(QUIET)).run(None)
+    assert result.metrics["vo_status_counts"].get("rejected", 0) >= 10
+    assert any(
+        "rejected as too fast" in r.message and "timestamps' unit" in r.message for r in caplog.records
+    )
+
+
+def test_the_public_api_refuses_wrong_types_naming_the_argument(demo, tmp_path):
+    """A path where a dataset belongs, a float frame range, a string for a lesion flag: a TypeError naming
+    the argument, instead of an AttributeError deep inside or a silent coercion (stop=1.5 ran one frame,
+    dorsal="no" lesioned the dorsal module)."""
+    import hippo_nav
+
+    with pytest.raises(TypeError, match="dataset must be a StereoDataset .*open_input"):
+        Pipeline(str(tmp_path))
+    with pytest.raises(TypeError, match="config must be a PipelineConfig or a dict"):
+        Pipeline(Frames(demo, 3), 42)  # type: ignore[arg-type]
+    # A dict of settings is checked as a config file is, and used.
+    with pytest.raises(HippoNavError, match="seed"):
+        Pipeline(Frames(demo, 3), {"seed": "one"})
+    assert Pipeline(Frames(demo, 3), {**QUIET, "seed": 7}).config.seed == 7
+    for kwargs, name in (
+        ({"stop": 1.5}, "stop"),
+        ({"start": True, "stop": 4}, "start"),
+        ({"stride": 2.7}, "stride"),
+    ):
+        with pytest.raises(TypeError, match=f"{name} must be a whole frame number"):
+            hippo_nav.run(tmp_path / "out", **kwargs)
+    engine = SpatialMemory()
+    with pytest.raises(TypeError, match="dorsal must be True or False, got 'no'"):
+        engine.set_lesions(dorsal="no")  # type: ignore[arg-type]
+    with pytest.raises(HippoNavError, match="grid module index 100000000000000000000 out of range"):
+        engine.grid_activity(10**20)
+    with pytest.raises(TypeError, match="module must be a grid module index"):
+        engine.grid_layer2("1")  # type: ignore[arg-type]
+    with pytest.raises(TypeError, match="config must be an EngineConfig, got dict.*load_config"):
+        SpatialMemory({"tau_s": 0.01})  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="lesioned"):
+        EngineConfig().with_lesions(dorsal="maybe")  # type: ignore[arg-type]
+
+
+def test_a_dataset_with_fewer_timestamps_than_frames_is_refused(demo):
+    frames = Frames(demo, 6, timestamps_s=demo.timestamps_s[:4])
+    with pytest.raises(DatasetError, match="timestamps_s holds 4 values for 6 frames"):
+        Pipeline(frames, config_from_dict(QUIET))
+
+
 def test_a_corrupt_file_in_a_render_cache_is_rendered_again(tmp_path):
     """The demo's cache (`render_cached`, under `demo_sequence`) renders a truncated image again; shown on a
     small render, as the demo's 200 frames would cost the test half a minute for the same check."""

@@ -14,8 +14,9 @@ DESCRIPTION = (
     "file as `run --config` does, without running: `FILE: valid` (an old spelling still reads, with a "
     "warning on stderr naming today's), or the one error line naming the field, exit 2. --show FILE prints "
     "FILE's resolved config, as a run writes it into config.json; --preset NAME a preset's (`\"preset\": "
-    "\"paper\"` in a file lays the paper's settings under the file's own). What depends on the input (a vocabulary "
-    "file, output.state_frames against the frames) is checked when a run starts (docs/pipeline.md)."
+    "\"paper\"` in a file lays the paper's settings under the file's own); --check reads the vocabulary file a "
+    "config names too. What depends on the input (output.state_frames against the frames) is checked when a "
+    "run starts (docs/pipeline.md)."
 )
 
 
@@ -52,7 +53,12 @@ def command(args: argparse.Namespace) -> int:
     from hippo_nav.system.config import PipelineConfig, load_config, resolved_config_dict
 
     if args.check is not None:
-        load_config(args.check)  # raises the one-line error (exit 2); old spellings are logged as warnings
+        checked = load_config(args.check)  # raises the one-line error (exit 2); old spellings are warnings
+        from hippo_nav.view_cells.words import Vocabulary, WordViewConfig
+
+        words = checked.section("view_words")
+        if isinstance(words, WordViewConfig) and words.vocabulary is not None:  # read as a run would
+            Vocabulary.load(words.vocabulary)
         print(f"{args.check}: valid")
         return 0
     # The same JSON a run writes into its config.json: it loads back with --config to the same config.

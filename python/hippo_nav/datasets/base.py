@@ -175,6 +175,31 @@ class StereoFrame:
     right: np.ndarray  # uint8 (H, W), camera 1
 
 
+def check_stereo_images(frame: StereoFrame, image_size_px: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """The frame's (left, right) as contiguous 8-bit gray (H, W) arrays of the calibration's size, or a
+    `DatasetError` saying which is not: images of another size than their calibration would leave every frame
+    without odometry, a run of zeros that says nothing of why."""
+    where = f"frame {getattr(frame, 'index', '?')}"
+    images = []
+    for name in ("left", "right"):
+        image = np.asarray(getattr(frame, name))
+        if image.ndim != 2 or image.dtype != np.uint8:
+            raise DatasetError(
+                f"{where}: the {name} image must be 8-bit gray (H, W), got {image.dtype} {image.shape}"
+            )
+        images.append(np.ascontiguousarray(image))
+    left, right = images
+    if left.shape != right.shape:
+        raise DatasetError(f"{where}: left {left.shape} and right {right.shape} image sizes differ")
+    width, height = image_size_px
+    if left.shape != (height, width):
+        raise DatasetError(
+            f"{where}: image is {left.shape[1]}×{left.shape[0]} px but the calibration is for "
+            f"{width}×{height}; give the calibration of these images"
+        )
+    return left, right
+
+
 @runtime_checkable
 class StereoDataset(Protocol):
     """What the pipeline needs from a stereo dataset: calibration, lazily loaded frames, ground truth."""

@@ -326,6 +326,56 @@ def read_image(path: Path) -> np.ndarray:
     return to_gray(read_image_file(path), str(path))
 
 
+def frame_interval_s(frame_indices: np.ndarray, frame_timestamps_s: np.ndarray) -> float | None:
+    """The median time between consecutive frames of the *sequence* (a stride or a gap in the yielded
+    frames divides out), or None when the timestamps do not advance."""
+    frames = np.asarray(frame_indices, dtype=np.float64)
+    times = np.asarray(frame_timestamps_s, dtype=np.float64)
+    d_frames, d_times = np.diff(frames), np.diff(times)
+    usable = (d_frames > 0) & (d_times > 0)
+    if not usable.any():
+        return None
+    return float(np.median(d_times[usable] / d_frames[usable]))
+
+
+SLOWEST_FRAME_INTERVAL_S = 20.0
+# No stereo camera a SLAM system is given takes more than 1 000 images a second; timestamps closer than
+# that are in a unit the reader does not expect (EuRoC's integer milliseconds read as its nanoseconds put
+# frames 100 ns apart, and the VO then rejects every step as impossibly fast: a trajectory of zeros).
+FASTEST_FRAME_INTERVAL_S = 1e-3
+_TIME_UNITS = (("milliseconds", 1e3), ("microseconds", 1e6), ("nanoseconds", 1e9))
+
+
+def check_time_unit(name: str, frame_indices: np.ndarray, timestamps_s: np.ndarray) -> None:
+    """Refuse frame timestamps that are not seconds: milliseconds or nanoseconds would make every frame a
+    time gap (flagged, one warning per frame, and the networks would lose the motion across it), a unit
+    read as a smaller one every step impossibly fast. A reader calls it on all its selected frames before
+    trimming them to a ground truth, which a wrong unit would trim to nothing."""
+    interval_s = frame_interval_s(frame_indices, np.asarray(timestamps_s, dtype=np.float64))
+    if interval_s is not None and interval_s < FASTEST_FRAME_INTERVAL_S:
+        raise DatasetError(
+            f"{name}: the timestamps advance by a median {interval_s:.3g} s per sequence frame, a camera "
+            f"taking {1.0 / interval_s:.3g} images a second; they are in another unit than the dataset's "
+            "reader expects (KITTI times.txt, a folder's times.txt and TUM files: seconds; EuRoC data.csv: "
+            "integer nanoseconds): fix the timestamps the dataset gives"
+        )
+    if interval_s is None or interval_s < SLOWEST_FRAME_INTERVAL_S:
+        return
+    guess = next(
+        (
+            f"{unit} (divide them by {factor:,.0f})"
+            for unit, factor in _TIME_UNITS
+            if interval_s / factor < 2.0
+        ),
+        "another unit",
+    )
+    raise DatasetError(
+        f"{name}: the timestamps advance by a median {interval_s:.4g} per sequence frame, which as "
+        f"seconds would be a camera taking one image every {interval_s:.3g} s; timestamps must be in seconds, "
+        f"and these look like {guess}: fix the timestamps the dataset gives (KITTI: times.txt)"
+    )
+
+
 def check_increasing(stamps_s: np.ndarray, what: str) -> None:
     """Timestamps must increase strictly (the pipeline's dt, and TUM files paired by time)."""
     steps = np.diff(stamps_s)
@@ -333,7 +383,7 @@ def check_increasing(stamps_s: np.ndarray, what: str) -> None:
         k = int(np.flatnonzero(steps <= 0)[0])
         how = "repeats" if steps[k] == 0 else "goes back from"
         raise DatasetError(
-            f"{what}: timestamp {stamps_s[k + 1]!r} (entry {k + 2}) {how} the previous one; "
+            f"{what}: timestamp {float(stamps_s[k + 1])!r} (entry {k + 2}) {how} the previous one; "
             "timestamps must increase"
         )
 
@@ -373,6 +423,16 @@ def pair_by_time(
     return left_idx, right_idx, tolerance_s
 
 
+def check_frame_range(start: object, stop: object, stride: object) -> None:
+    """`start`, `stop` (or None) and `stride` must be whole numbers: 1.5 or True would be cut to 1 silently,
+    a run over other frames than asked for."""
+    for name, value in (("start", start), ("stop", stop), ("stride", stride)):
+        if value is None and name != "stride":
+            continue
+        if isinstance(value, bool) or not isinstance(value, int | np.integer):
+            raise TypeError(f"{name} must be a whole frame number, got {value!r} ({type(value).__name__})")
+
+
 class FrameSelection:
     """`range(start, stop, stride)` of the left camera's frame numbers, minus those without a stereo pair.
 
@@ -388,6 +448,7 @@ class FrameSelection:
         stride: int,
         where: str,
     ) -> None:
+        check_frame_range(start, stop, stride)
         if stride < 1:
             raise DatasetError(f"stride must be >= 1, got {stride}")
         lo = 0 if start is None else int(start)
@@ -452,6 +513,10 @@ def interpolate_poses(
     return out, covered
 
 
+GROUND_TRUTH_SLOWER_AT_MOST = 50.0
+"""A ground truth sampled more slowly than a second and than this many camera frames is in the wrong unit."""
+
+
 def ground_truth_at_frames(
     stamps_s: np.ndarray,
     poses: np.ndarray,
@@ -463,6 +528,20 @@ def ground_truth_at_frames(
 
     With `trim`, frames before/after the ground truth's span are dropped (the mask); without it, or when
     the ground truth covers none of the frames, every frame is kept and the ground truth is None."""
+    gt_interval_s = float(np.median(np.diff(stamps_s))) if len(stamps_s) > 1 else None
+    frames_interval_s = frame_interval_s(np.arange(len(frame_times_s)), frame_times_s)
+    if (
+        gt_interval_s is not None
+        and frames_interval_s is not None
+        and gt_interval_s > max(1.0, GROUND_TRUTH_SLOWER_AT_MOST * frames_interval_s)
+    ):
+        # A ground truth in milliseconds or nanoseconds beside images in seconds: every frame would fall
+        # between its first two samples and be given a pose interpolated between them, a drive that never moves.
+        raise DatasetError(
+            f"{where}: its samples are a median {gt_interval_s:.4g} apart, the images {frames_interval_s:.3g} s: "
+            f"a ground truth sampled more than {GROUND_TRUTH_SLOWER_AT_MOST:g}× more slowly than the camera is in "
+            "another unit; its timestamps must be seconds, as the images' are"
+        )
     at_frames, covered = interpolate_poses(stamps_s, poses, frame_times_s)
     keep = np.ones(len(frame_times_s), dtype=bool)
     if covered.all():

@@ -34,6 +34,7 @@ from hippo_nav.datasets.base import StereoFrame, StereoLoader, check_intrinsics
 from hippo_nav.datasets.common import (
     FrameSelection,
     check_increasing,
+    check_time_unit,
     ground_truth_at_frames,
     pair_by_time,
     read_image,
@@ -268,6 +269,7 @@ class EurocStereo(StereoLoader):
 
         # Ground truth at the image times, in the rectified camera 0.
         times_s = left.stamps_ns[frames] * 1e-9
+        check_time_unit(where, frames, times_s)  # before trimming to a ground truth in another unit
         gt_path = mav0 / "state_groundtruth_estimate0" / "data.csv"
         if gt_path.is_file():
             frames, times_s = self._ground_truth_at(gt_path, frames, times_s, trim_to_ground_truth)

@@ -18,6 +18,7 @@ another count, an unreadable TUM line.
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +28,7 @@ from hippo_nav.datasets.common import (
     IMAGE_SUFFIXES,
     FrameSelection,
     check_increasing,
+    check_time_unit,
     ground_truth_at_frames,
     natural_key,
     read_image,
@@ -42,6 +44,9 @@ TIMES_FILE = "times.txt"
 GROUND_TRUTH_FILE = "ground_truth.tum"
 
 
+CALIBRATION_KEYS = ("fx", "fy", "cx", "cy", "baseline_m", "baseline", "width", "height")
+
+
 def list_images(folder: Path) -> list[Path]:
     """The image files of `folder` in natural name order."""
     if not folder.is_dir():
@@ -50,6 +55,29 @@ def list_images(folder: Path) -> list[Path]:
     if not images:
         raise DatasetError(f"{folder}: no images ({', '.join(IMAGE_SUFFIXES)})")
     return sorted(images, key=lambda p: natural_key(p.name))
+
+
+def check_pairs_by_number(left: list[Path], right: list[Path]) -> None:
+    """Pairs are matched by position in name order: an image missing on each side keeps the counts equal and
+    pairs every frame between them with another moment's image, a stereo pair with a wrong depth. Where the
+    names' last numbers agree on a first pair and then stop agreeing, that happened (names numbered by each
+    camera's own clock may differ throughout, and are not judged)."""
+    numbers = [(_last_number(a.name), _last_number(b.name)) for a, b in zip(left, right)]
+    if not any(a is not None and a == b for a, b in numbers):
+        return
+    for k, (a, b) in enumerate(numbers):
+        if a != b:
+            lacks = "right/" if a is not None and b is not None and a < b else "left/"
+            raise DatasetError(
+                f"{left[k].parent.parent}: the images are paired in name order, and image {k} of each is "
+                f"left/{left[k].name} but right/{right[k].name}, where the pairs before agreed: {lacks} lacks "
+                "an image there; give every frame both images (or remove the unpaired one)"
+            )
+
+
+def _last_number(name: str) -> int | None:
+    runs = re.findall(r"\d+", name)
+    return int(runs[-1]) if runs else None
 
 
 def read_times_file(path: Path, count: int) -> np.ndarray:
@@ -106,10 +134,22 @@ class StereoFolder(StereoLoader):
                 f"{self.root}: left/ holds {len(self._left)} images but right/ holds {len(self._right)}; "
                 "every left image needs its right image (pairs are matched in name order)"
             )
+        check_pairs_by_number(self._left, self._right)
         n = len(self._left)
 
         calib_path = self.root / CALIBRATION_FILE
         calib = read_yaml(calib_path, "calibration (fx, fy, cx, cy, baseline_m)")
+        # The images must be rectified already: a distortion (k1, D, …) given here would be dropped without a
+        # word, and a typo (`widht`) leave its check undone.
+        unknown = sorted(str(k) for k in set(calib) - set(CALIBRATION_KEYS))
+        if unknown:
+            raise file_error(
+                calib_path,
+                f"unknown key(s) {', '.join(unknown)}; known: {', '.join(CALIBRATION_KEYS)} (the images must be "
+                "rectified, so no distortion is taken)",
+            )
+        if "baseline" in calib and "baseline_m" in calib:
+            raise file_error(calib_path, "gives both baseline and baseline_m; give baseline_m only")
         if "baseline_m" not in calib and "baseline" in calib:
             calib["baseline_m"] = calib["baseline"]
         fx, fy = (yaml_number(calib, k, calib_path, positive=True) for k in ("fx", "fy"))
@@ -136,6 +176,7 @@ class StereoFolder(StereoLoader):
         selection = FrameSelection(np.arange(n), n, start, stop, stride, f"{self.root / 'left'}")
         frames = selection.frames
         times_s = all_times_s[frames]
+        check_time_unit(self.name, frames, times_s)  # before trimming to a ground truth in another unit
 
         gt_path = self.root / GROUND_TRUTH_FILE
         if gt_path.is_file():

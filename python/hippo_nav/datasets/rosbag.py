@@ -50,6 +50,7 @@ from hippo_nav.datasets.base import (
 from hippo_nav.datasets.common import (
     FrameSelection,
     check_increasing,
+    check_time_unit,
     decode_image_bytes,
     ground_truth_at_frames,
     pair_by_time,
@@ -251,6 +252,7 @@ class RosbagStereo(StereoLoader):
         partner = dict(zip(left_idx.tolist(), right_idx.tolist()))
         frames = selection.frames
         times_s = left_s[frames]
+        check_time_unit(f"{opened} {left_name}", frames, times_s)
 
         # Calibration (and rectification), checked on the first pair.
         self.rectifier: StereoRectifier | None = None
@@ -288,12 +290,15 @@ class RosbagStereo(StereoLoader):
                 raise file_error(
                     topics_path, f"unknown key(s) {', '.join(unknown)}; known: {', '.join(SETTINGS)}"
                 )
+            _check_setting_types(config, str(topics_path))
             if config.get("ground_truth"):
                 config["ground_truth"] = str(topics_path.parent / str(config["ground_truth"]))
             for key in ("fx", "fy", "cx", "cy", "baseline_m", "max_stereo_dt_s"):
                 if config.get(key) is not None:
                     config[key] = yaml_number(config, key, topics_path, positive=key != "cx" and key != "cy")
-        config.update({k: v for k, v in given.items() if v is not None})
+        given = {k: v for k, v in given.items() if v is not None}
+        _check_setting_types(given, "ROS bag option")
+        config.update(given)
         return config
 
     def _describe(self, available: dict[str, Any]) -> str:
@@ -484,3 +489,13 @@ class RosbagStereo(StereoLoader):
 
     def __repr__(self) -> str:
         return f"RosbagStereo(path={str(self.path)!r}, topics=({self._left.name}, {self._right.name}), frames={len(self)})"
+
+
+def _check_setting_types(settings: dict[str, Any], where: str) -> None:
+    """A topic or file name must be text and `rectified` a boolean: `rectified: 'false'` is a non-empty
+    string, which would read as true and skip the rectification of raw images."""
+    for key in ("left_topic", "right_topic", "left_info_topic", "right_info_topic", "ground_truth"):
+        if settings.get(key) is not None and not isinstance(settings[key], str | Path):
+            raise DatasetError(f"{where}: {key}: {settings[key]!r} is not a name; give one as text")
+    if settings.get("rectified") is not None and not isinstance(settings["rectified"], bool):
+        raise DatasetError(f"{where}: rectified: {settings['rectified']!r} is not true or false (unquoted)")

@@ -268,4 +268,5 @@ class EngineConfig(_Section):
     def with_lesions(
         self, ventral: bool = False, intermediate: bool = False, dorsal: bool = False
     ) -> EngineConfig:
-        return self.model_copy(update={"lesioned": [ventral, intermediate, dorsal]})
+        # Validated as a config file's `lesioned` is (model_copy would take `dorsal="no"` as it comes).
+        return type(self).model_validate({**self.model_dump(), "lesioned": [ventral, intermediate, dorsal]})

@@ -38,6 +38,11 @@ class SpatialMemory:
     """HD ring + `N_MODULES` grid modules + CA3 place torus, stepped per camera frame."""
 
     def __init__(self, config: EngineConfig | None = None, dtype: str = "float32") -> None:
+        if config is not None and not isinstance(config, EngineConfig):
+            raise TypeError(
+                f"config must be an EngineConfig, got {type(config).__name__} (settings from a file: "
+                "hippo_nav.load_config(path).engine, which checks every key)"
+            )
         self.config = config if config is not None else EngineConfig()
         self._net = _core._SpatialMemory(self.config.to_json(), dtype)
 
@@ -72,7 +77,7 @@ class SpatialMemory:
 
     def set_lesions(self, ventral: bool = False, intermediate: bool = False, dorsal: bool = False) -> None:
         """Switch grid modules off ("MEC inactivation"); a lesioned module leaves the fusion."""
-        self._net.set_lesions([bool(ventral), bool(intermediate), bool(dorsal)])
+        self._net.set_lesions(_lesion_flags(ventral, intermediate, dorsal))
 
     def hd_activity(self) -> np.ndarray:
         """HD-by-velocity activity, shape (Nν, Nθ)."""
@@ -84,11 +89,11 @@ class SpatialMemory:
 
     def grid_activity(self, module: int) -> np.ndarray:
         """Conjunctive activity, shape (M, M, N, N) = (νy, νx, θy, θx)."""
-        return self._net.grid_activity(module)
+        return self._net.grid_activity(_module_index(module))
 
     def grid_layer2(self, module: int) -> np.ndarray:
         """Layer-II ("pure grid cell") pattern, shape (N, N) = (θy, θx)."""
-        return self._net.grid_layer2(module)
+        return self._net.grid_layer2(_module_index(module))
 
     def place_activity(self) -> np.ndarray:
         return self._net.place_activity()
@@ -127,3 +132,21 @@ class SpatialMemory:
     @property
     def meters_per_rad(self) -> float:
         return self.config.torus_period_m / (2 * np.pi)
+
+
+def _lesion_flags(ventral: object, intermediate: object, dorsal: object) -> list[bool]:
+    """Each flag a real boolean: `dorsal="no"` is a non-empty string, true to `bool`, a lesion not asked for."""
+    flags = {"ventral": ventral, "intermediate": intermediate, "dorsal": dorsal}
+    for name, value in flags.items():
+        if not isinstance(value, bool | np.bool_):
+            raise TypeError(f"{name} must be True or False, got {value!r}")
+    return [bool(v) for v in flags.values()]
+
+
+def _module_index(module: object) -> int:
+    """A grid module's index (0 = coarsest) as an int the native call takes, or an error naming it."""
+    if isinstance(module, bool) or not isinstance(module, int | np.integer):
+        raise TypeError(f"module must be a grid module index (0 = coarsest), got {module!r}")
+    if not 0 <= int(module) < N_MODULES:
+        raise HippoNavError(f"grid module index {module} out of range: there are {N_MODULES} (0 = coarsest)")
+    return int(module)

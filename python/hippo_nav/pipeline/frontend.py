@@ -43,7 +43,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple, TypeVar
 import numpy as np
 
 from hippo_nav._core import HippoNavError
-from hippo_nav.datasets.base import StereoDataset, StereoFrame
+from hippo_nav.datasets.base import StereoDataset, StereoFrame, check_stereo_images
 from hippo_nav.view_cells import ViewDescriptor
 from hippo_nav.vo import Odometry, OdometryStep
 from hippo_nav.workers import INLINE, Worker
@@ -169,8 +169,12 @@ class FrontEnd:
         odometry: OdometryGuard,
         view_cells: ViewDescriptor | None = None,
         overlap: bool = True,
+        image_size_px: tuple[int, int] | None = None,
     ) -> None:
         self.dataset = dataset
+        self._image_size_px = (
+            image_size_px  # (width, height) every frame's images must have (None: unchecked)
+        )
         self.odometry = odometry
         # Views are described on the loader only when the descriptor asks for it (then with the images, ahead).
         self._describe = (
@@ -227,6 +231,10 @@ class FrontEnd:
         clock = time.perf_counter()
         frame = self.dataset[i]
         load_s = time.perf_counter() - clock
+        # A dataset made in Python can give images its calibration does not describe: that is the data's
+        # fault (a `DatasetError`, which stops the run), not a frame the odometry failed on.
+        if self._image_size_px is not None:
+            check_stereo_images(frame, self._image_size_px)
         return _Loaded(frame, load_s, self._describe(frame) if self._describe is not None else None)
 
     def _front(self, i: int, loaded: Future[_Loaded] | None = None) -> FrontResult:

@@ -487,11 +487,21 @@ def evaluate(
         what = (
             f"no stereo depth for the odometry (the stereo pair looks {facts.stereo_fault}: see the warning above)"
             if facts.stereo_fault
-            else "too little usable texture for the odometry (dark, blurred or covered images?)"
+            else "too little usable texture for the odometry (dark, blurred or covered images? or a stereo "
+            "calibration that gives the pair no depth: check both cameras' intrinsics and the baseline)"
         )
         log.warning(
             "%d of %d frames (%.0f %%) had %s: the trajectory leans on the motion prior there",
             low_texture, n, 100.0 * low_texture / n, what,
+        )  # fmt: skip
+    rejected = vo_statuses.get("rejected", 0)
+    if n >= 10 and rejected > 0.5 * n:
+        # Steps faster or turning faster than the VO's limits: wrong timestamps or a wrong calibration more
+        # often than a car that fast; the odometry then holds the motion prior, and the map is not the drive.
+        log.warning(
+            "%d of %d frames (%.0f %%) had an odometry step the VO rejected as too fast for the time between "
+            "the frames (vo.max_speed_m_s, vo.max_yaw_rate_rad_s): check the timestamps' unit and the calibration",
+            rejected, n, 100.0 * rejected / n,
         )  # fmt: skip
     metrics: dict[str, Any] = {
         "sequence": result.name,

@@ -19,7 +19,7 @@ import logging
 import signal
 import threading
 import time
-from collections.abc import Iterator, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -28,6 +28,7 @@ import numpy as np
 from hippo_nav._core import HippoNavError
 from hippo_nav.closure import ClosureChain
 from hippo_nav.datasets.base import DatasetExtras, StereoDataset
+from hippo_nav.datasets.common import check_frame_range, check_time_unit
 from hippo_nav.io import DatasetError
 from hippo_nav.memory import SavedMemory, read_memory
 from hippo_nav.pipeline.assemble import assemble_result, corrected_track
@@ -45,13 +46,12 @@ from hippo_nav.pipeline.results import PreviousResults, RunFacts
 from hippo_nav.pipeline.sessions import path_to_save, sessions_metrics, sessions_track
 from hippo_nav.pipeline.truth import LoadedTruth, loaded_truth, truth_to_save
 from hippo_nav.system import parts
-from hippo_nav.system.config import PipelineConfig
+from hippo_nav.system.config import PipelineConfig, config_from_dict
 from hippo_nav.system.records import StageTimer
 from hippo_nav.system.slam import SlamSystem
 from hippo_nav.view_cells import ViewDescriptor
 from hippo_nav.vo import VoParams
 from hippo_nav.vo.disparity import LIMIT_PX as DISPARITY_LIMIT_PX
-from hippo_nav.vo.replay import frame_interval_s
 
 log = logging.getLogger("hippo_nav.pipeline")
 
@@ -72,7 +72,7 @@ class Pipeline:
     def __init__(
         self,
         dataset: StereoDataset,
-        config: PipelineConfig | None = None,
+        config: PipelineConfig | Mapping[str, Any] | None = None,
         progress: bool = False,
         *,
         odometry: Odometry | None = None,
@@ -81,6 +81,17 @@ class Pipeline:
         observers: Sequence[Observer] = (),
         memory: SavedMemory | None = None,
     ) -> None:
+        if isinstance(dataset, str | Path) or not isinstance(dataset, StereoDataset):
+            raise TypeError(
+                f"dataset must be a StereoDataset (hippo_nav.pipeline.open_input(path) opens one), got "
+                f"{type(dataset).__name__}"
+            )
+        if isinstance(config, Mapping):  # the settings as a config file holds them, checked as one is
+            config = config_from_dict(dict(config))
+        elif config is not None and not isinstance(config, PipelineConfig):
+            raise TypeError(
+                f"config must be a PipelineConfig or a dict of its settings, got {type(config).__name__}"
+            )
         self.dataset = dataset
         self.config = config if config is not None else PipelineConfig()
         self.progress = progress
@@ -165,7 +176,13 @@ class Pipeline:
         started, started_cpu = time.perf_counter(), time.process_time()
         record = self.record
         guard = OdometryGuard(self.odometry)
-        front_end = FrontEnd(self.dataset, guard, self.system.view_cells, self.config.overlap_front_end)
+        front_end = FrontEnd(
+            self.dataset,
+            guard,
+            self.system.view_cells,
+            self.config.overlap_front_end,
+            image_size_px=self.dataset.calibration.image_size_px,
+        )
         info = RunInfo(self.dataset_name, len(self.dataset), self.dataset.ground_truth)
         with self._progress_bar() as bar, front_end as front:
             try:
@@ -551,6 +568,7 @@ def open_input(
     `dataset`) the built-in synthetic demo loop."""
     from hippo_nav.datasets import KittiOdometry, open_dataset
 
+    check_frame_range(start, stop, stride)
     if dataset is None:
         from hippo_nav.synthetic import DEMO_SEQUENCE, demo_sequence
 
@@ -598,7 +616,7 @@ def run(
     start: int | None = None,
     stop: int | None = None,
     stride: int = 1,
-    config: PipelineConfig | None = None,
+    config: PipelineConfig | Mapping[str, Any] | None = None,
     progress: bool = True,
     odometry: Any = None,
     overwrite: bool = False,
@@ -629,28 +647,14 @@ def run(
 
 # A camera for odometry takes an image at least this often; timestamps that advance more slowly per
 # sequence frame are in another unit (KITTI's times.txt and every loader give seconds).
-_SLOWEST_FRAME_INTERVAL_S = 20.0
-_TIME_UNITS = (("milliseconds", 1e3), ("microseconds", 1e6), ("nanoseconds", 1e9))
-
-
 def _check_time_unit(dataset: StereoDataset) -> None:
-    """Refuse timestamps that are not seconds: milliseconds or nanoseconds would make every frame a time
-    gap (flagged, one warning per frame, and the networks would lose the motion across it)."""
-    interval_s = frame_interval_s(
-        np.asarray(dataset.frame_indices), np.asarray(dataset.timestamps_s, dtype=np.float64)
-    )
-    if interval_s is None or interval_s < _SLOWEST_FRAME_INTERVAL_S:
-        return
-    guess = next(
-        (
-            f"{unit} (divide them by {factor:,.0f})"
-            for unit, factor in _TIME_UNITS
-            if interval_s / factor < 2.0
-        ),
-        "another unit",
-    )
-    raise DatasetError(
-        f"{dataset.name}: the timestamps advance by a median {interval_s:.4g} per sequence frame, which as "
-        f"seconds would be a camera taking one image every {interval_s:.3g} s; timestamps must be in seconds, "
-        f"and these look like {guess}: fix the timestamps the dataset gives (KITTI: times.txt)"
-    )
+    """Any dataset's frame numbers and timestamps must be one per frame, the timestamps in seconds (a reader
+    checks its own before trimming to a ground truth; a dataset made in Python is checked here)."""
+    n = len(dataset)
+    for name in ("frame_indices", "timestamps_s"):
+        given = len(np.asarray(getattr(dataset, name)))
+        if given != n:
+            raise DatasetError(
+                f"{dataset.name}: {name} holds {given} values for {n} frames; give one per frame"
+            )
+    check_time_unit(str(dataset.name), np.asarray(dataset.frame_indices), np.asarray(dataset.timestamps_s))

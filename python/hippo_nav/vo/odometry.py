@@ -57,6 +57,7 @@ import cv2
 import numpy as np
 
 from hippo_nav._core import HippoNavError, _SlidingWindow
+from hippo_nav.datasets.base import check_stereo_images
 from hippo_nav.geometry import planar_step
 from hippo_nav.vo.matching import NO_PIXELS as _NO_PIXELS
 from hippo_nav.vo.matching import Image, ImageMatcher
@@ -259,25 +260,7 @@ class StereoOdometry:
 
     # ------------------------------------------------------------------------------------------------
     def _check_images(self, frame) -> tuple[np.ndarray, np.ndarray]:
-        where = f"frame {getattr(frame, 'index', '?')}"
-        images = []
-        for name in ("left", "right"):
-            image = np.asarray(getattr(frame, name))
-            if image.ndim != 2 or image.dtype != np.uint8:
-                raise HippoNavError(
-                    f"{where}: the {name} image must be 8-bit gray (H, W), got {image.dtype} {image.shape}"
-                )
-            images.append(np.ascontiguousarray(image))
-        left, right = images
-        if left.shape != right.shape:
-            raise HippoNavError(f"{where}: left {left.shape} and right {right.shape} image sizes differ")
-        width, height = self.calibration.image_size_px
-        if left.shape != (height, width):
-            raise HippoNavError(
-                f"{where}: image is {left.shape[1]}×{left.shape[0]} px but the calibration is for "
-                f"{width}×{height}; use the calib.txt of this sequence"
-            )
-        return left, right
+        return check_stereo_images(frame, self.calibration.image_size_px)
 
     def _stereo_points(
         self,

@@ -51,6 +51,7 @@ from typing import Any
 import numpy as np
 
 from hippo_nav.datasets.base import StereoDataset
+from hippo_nav.datasets.common import frame_interval_s
 from hippo_nav.datasets.kitti import read_times
 from hippo_nav.io import DatasetError, read_kitti_poses, read_text, read_tum
 from hippo_nav.io.errors import file_error, os_error_words
@@ -223,18 +224,6 @@ def pair_by_timestamp(
         sharing = np.flatnonzero(paired == pose)
         paired[np.delete(sharing, np.argmin(offset_s[sharing]))] = -1
     return paired
-
-
-def frame_interval_s(frame_indices: np.ndarray, frame_timestamps_s: np.ndarray) -> float | None:
-    """The median time between consecutive frames of the *sequence* (a stride or a gap in the yielded
-    frames divides out), or None when the timestamps do not advance."""
-    frames = np.asarray(frame_indices, dtype=np.float64)
-    times = np.asarray(frame_timestamps_s, dtype=np.float64)
-    d_frames, d_times = np.diff(frames), np.diff(times)
-    usable = (d_frames > 0) & (d_times > 0)
-    if not usable.any():
-        return None
-    return float(np.median(d_times[usable] / d_frames[usable]))
 
 
 def align_tum_poses(
