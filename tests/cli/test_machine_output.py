@@ -154,7 +154,10 @@ def test_config_check_a_bad_file_is_one_line_and_exit_2(tmp_path, capsys):
 
 def test_config_check_reads_the_vocabulary_the_config_names(tmp_path, capsys):
     """`run` would refuse a missing or unreadable vocabulary file: `--check` must not call it valid."""
-    for vocabulary, phrase in ((tmp_path / "none.voc", "none.voc: cannot read the vocabulary"), (tmp_path, "")):
+    for vocabulary, phrase in (
+        (tmp_path / "none.voc", "none.voc: cannot read the vocabulary"),
+        (tmp_path, ""),
+    ):
         config = tmp_path / "words.json"
         config.write_text(json.dumps({"view_words": {"vocabulary": str(vocabulary)}}))
         assert main(["config", "--check", str(config)]) == 2

@@ -84,6 +84,8 @@ GOOD_LINE = "1 0 0 0 0 1 0 0 0 0 1 0"
         ("1 0 0 nan 0 1 0 0 0 0 1 0\n", 1, "NaN"),
         (f"{GOOD_LINE}\n2 0 0 0 0 1 0 0 0 0 1 0\n", 2, "not a rotation"),
         (f"{GOOD_LINE}\n\n{GOOD_LINE}\n", 2, "blank line"),
+        (f"# x y z\n{GOOD_LINE}\n", 1, "found 4; this is a comment line, which the format has none of"),
+        (f"{GOOD_LINE.replace(' ', ',')}\n", 1, "found 1; the numbers are separated by commas"),
     ],
 )
 def test_malformed_kitti_pose_file_names_file_and_line(

@@ -24,8 +24,10 @@ from hippo_nav.recording.figures import write_measure_figures
 from hippo_nav.recording.measures import (
     RecordingMeasures,
     autocorrelogram,
+    firing_fields,
     grid_scores,
     measure_recording,
+    passes_shuffle_test,
     rate_maps,
     square_lattice,
 )
@@ -117,6 +119,26 @@ def test_information_and_fields_follow_the_lattice(measures):
 
 
 # --------------------------------------------------------------------------------------------- head direction
+
+
+def test_a_field_never_floods_bins_never_visited_or_silent():
+    """A 1-second session visits a few bins: opexebo grew the field around its one peak over the whole
+    arena (one field of 4 m² in a 2 m box). A field holds the visited, active bins connected to its peak."""
+    sparse = np.full((80, 80), np.nan)
+    sparse[40, 30:37] = [0.2, 0.5, 0.8, 1.0, 0.8, 0.5, 0.2]
+    assert firing_fields(sparse, 0.025) == (0, pytest.approx(math.nan, nan_ok=True))
+    assert firing_fields(np.nan_to_num(sparse), 0.025)[0] == 0
+    # A real field beside silent bins keeps exactly its active bins.
+    blob = np.zeros((80, 80))
+    yy, xx = np.mgrid[0:80, 0:80]
+    blob[np.hypot(yy - 40, xx - 40) <= 5] = 1.0
+    count, area_m2 = firing_fields(blob, 0.025)
+    assert count == 1 and area_m2 == pytest.approx(int((blob > 0).sum()) * 0.025**2)
+
+
+def test_a_negative_grid_score_never_passes_however_low_the_threshold():
+    assert not passes_shuffle_test(-0.16, -0.1597)
+    assert passes_shuffle_test(0.4, 0.3) and not passes_shuffle_test(0.2, 0.3)
 
 
 def test_hd_units_prefer_their_designed_heading(measures):

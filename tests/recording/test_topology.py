@@ -161,6 +161,12 @@ def test_a_silent_population_is_a_clear_error(session: Recording) -> None:
         activity_topology(silent, sample_dt_s=session.sample_dt_s, speed_m_s=session.speed_m_s, params=FAST)
     with pytest.raises(TopologyError, match="no population 'grid_x'"):
         population_topology(session, "grid_x", FAST)
+    # An animal that never moved leaves no moving time point: the same clear error (an IndexError before).
+    still = np.zeros_like(session.speed_m_s)
+    with pytest.raises(TopologyError, match="0 active, moving time points"):
+        activity_topology(
+            session.populations["hd"], sample_dt_s=session.sample_dt_s, speed_m_s=still, params=FAST
+        )
 
 
 def test_the_figure_is_written_as_png_and_pdf(session: Recording, tmp_path: Path) -> None:

@@ -164,6 +164,25 @@ def test_a_frame_outside_the_aligned_range_is_a_clear_error(kitti_root, tmp_path
         replay.process(KittiOdometry(kitti_root, SEQUENCE)[7])
 
 
+def test_a_replay_given_to_a_run_is_checked_and_started_afresh(kitti_root, tmp_path):
+    """A replay aligned for other frames is refused before the first frame (its frames were "failed" one by
+    one, two thirds of a run made up), and one given to a second run starts a new trajectory (its first
+    step jumped from the last run's end back to the start)."""
+    from hippo_nav.pipeline import Pipeline, config_from_dict
+
+    quiet = config_from_dict({"output": {"figures": False}})
+    path = write_kitti_poses(tmp_path / "other.txt", random_trajectory(N_FRAMES, seed=3))
+    built_for = KittiOdometry(kitti_root, SEQUENCE, stop=6)
+    with pytest.raises(DatasetError, match="frame 6 has no pose in the replay"):
+        Pipeline(
+            KittiOdometry(kitti_root, SEQUENCE, start=2), quiet, odometry=ReplayOdometry(path, built_for)
+        )
+    replay = ReplayOdometry(path, built_for)
+    first, second = (Pipeline(built_for, quiet, odometry=replay).run(None) for _ in range(2))
+    np.testing.assert_array_equal(first.vo_world_from_camera, second.vo_world_from_camera)
+    assert second.metrics["vo_status_counts"] == {"first": 1, "ok": 5}
+
+
 def test_bad_files_and_options_are_one_line_errors(tmp_path, kitti_root):
     one = write_kitti_poses(tmp_path / "one.txt", np.eye(4)[None])
     with pytest.raises(DatasetError, match="holds 1 pose; replaying odometry needs at least 2"):

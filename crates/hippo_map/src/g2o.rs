@@ -62,7 +62,7 @@ pub fn parse_g2o(text: &str) -> Result<PoseGraph> {
     let mut vertices: BTreeMap<u64, Pose2> = BTreeMap::new();
     // (from id, to id, measurement, information, line number)
     let mut raw_edges: Vec<RawEdge> = Vec::new();
-    let mut fixed_id: Option<u64> = None;
+    let mut fixed_id: Option<(u64, usize)> = None; // (vertex id, line)
     for (index, raw) in text.lines().enumerate() {
         let line = index + 1;
         let content = raw.split('#').next().unwrap_or("").trim();
@@ -75,7 +75,11 @@ pub fn parse_g2o(text: &str) -> Result<PoseGraph> {
                 let id = parse_id(tokens.get(1).copied(), line)?;
                 let [x, y, yaw] =
                     parse_numbers::<3>(&tokens[2.min(tokens.len())..], line, "VERTEX_SE2")?;
-                if vertices.insert(id, Pose2::new(x, y, yaw)).is_some() {
+                let pose = Pose2::new(x, y, yaw);
+                // As `add_vertex` and a map file do: a pose of 1e300 m is a unit error, not a place.
+                crate::graph::check_pose("VERTEX_SE2 pose", &pose)
+                    .map_err(|e| parse_error(line, e.to_string()))?;
+                if vertices.insert(id, pose).is_some() {
                     return Err(parse_error(line, format!("vertex {id} is declared twice")));
                 }
             }
@@ -87,7 +91,7 @@ pub fn parse_g2o(text: &str) -> Result<PoseGraph> {
                 raw_edges.push((from, to, Pose2::new(v[0], v[1], v[2]), information, line));
             }
             "FIX" => {
-                fixed_id = Some(parse_id(tokens.get(1).copied(), line)?);
+                fixed_id = Some((parse_id(tokens.get(1).copied(), line)?, line));
             }
             other => {
                 return Err(parse_error(
@@ -134,10 +138,10 @@ pub fn parse_g2o(text: &str) -> Result<PoseGraph> {
         edges: Vec::with_capacity(raw_edges.len()),
         fixed: 0,
     };
-    if let Some(id) = fixed_id {
+    if let Some((id, line)) = fixed_id {
         graph.fixed = *index_of.get(&id).ok_or_else(|| {
             parse_error(
-                0,
+                line,
                 format!("FIX names vertex {id}, which has no vertex or edge"),
             )
         })?;
@@ -271,6 +275,21 @@ EDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nEDGE_SE2 1 2 0 1 1.5 1 0 0 1 0 1\nEDGE_SE2 2 0 0
             parse_g2o("VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 0 0 0\nEDGE_SE2 0 1 1 0 0 -1 0 0 1 0 1\n")
                 .unwrap_err();
         assert!(err.to_string().contains("positive definite"), "{err}");
+        // A vertex beyond any map (a unit error) is refused as `add_vertex` refuses it: relaxed, such a
+        // graph pulled every vertex onto it and called itself converged.
+        let err = parse_g2o(
+            "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1e300 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\n",
+        )
+        .unwrap_err();
+        assert!(
+            err.to_string().contains("line 2") && err.to_string().contains("1e9"),
+            "{err}"
+        );
+        let err = parse_g2o(
+            "VERTEX_SE2 0 0 0 0\nVERTEX_SE2 1 1 0 0\nEDGE_SE2 0 1 1 0 0 1 0 0 1 0 1\nFIX 9\n",
+        )
+        .unwrap_err();
+        assert!(err.to_string().contains("line 4"), "{err}");
     }
 
     /// A link at the g2o file's name is replaced by the file; what it pointed to is untouched. A write

@@ -81,7 +81,12 @@ def _check_rotation(rotation: np.ndarray, path: Path, line: int) -> None:
 def _numbers(text: str, path: Path, line: int, expected: int, what: str) -> np.ndarray:
     fields = text.split()
     if len(fields) != expected:
-        raise file_error(path, f"expected {expected} numbers ({what}), found {len(fields)}", line)
+        why = ""
+        if text.lstrip().startswith("#"):
+            why = "; this is a comment line, which the format has none of: remove it"
+        elif "," in text:
+            why = "; the numbers are separated by commas, where the format separates them by spaces"
+        raise file_error(path, f"expected {expected} numbers ({what}), found {len(fields)}{why}", line)
     try:
         values = np.array([float(f) for f in fields], dtype=np.float64)
     except ValueError as err:

@@ -44,6 +44,7 @@ import numpy as np
 
 from hippo_nav._core import HippoNavError
 from hippo_nav.datasets.base import StereoDataset, StereoFrame, check_stereo_images
+from hippo_nav.io.errors import DatasetError
 from hippo_nav.view_cells import ViewDescriptor
 from hippo_nav.vo import Odometry, OdometryStep
 from hippo_nav.workers import INLINE, Worker
@@ -128,6 +129,8 @@ class OdometryGuard:
             result = self.odometry.process(frame)
             step = np.asarray(result.camera_prev_from_camera_cur, dtype=np.float64)
             status = str(getattr(result, "status", "ok"))
+        except DatasetError:
+            raise  # the data's fault (a replay with no pose for this frame): it stops the run, as a bad frame does
         except (HippoNavError, ArithmeticError) as err:
             log.warning("frame %s: odometry failed (%s); using the previous step", frame.index, err)
             return self._last_step.copy(), "failed"

@@ -52,6 +52,7 @@ from hippo_nav.system.slam import SlamSystem
 from hippo_nav.view_cells import ViewDescriptor
 from hippo_nav.vo import VoParams
 from hippo_nav.vo.disparity import LIMIT_PX as DISPARITY_LIMIT_PX
+from hippo_nav.vo.replay import ReplayOdometry
 
 log = logging.getLogger("hippo_nav.pipeline")
 
@@ -81,11 +82,7 @@ class Pipeline:
         observers: Sequence[Observer] = (),
         memory: SavedMemory | None = None,
     ) -> None:
-        if isinstance(dataset, str | Path) or not isinstance(dataset, StereoDataset):
-            raise TypeError(
-                f"dataset must be a StereoDataset (hippo_nav.pipeline.open_input(path) opens one), got "
-                f"{type(dataset).__name__}"
-            )
+        _check_dataset_type(dataset)
         if isinstance(config, Mapping):  # the settings as a config file holds them, checked as one is
             config = config_from_dict(dict(config))
         elif config is not None and not isinstance(config, PipelineConfig):
@@ -96,7 +93,7 @@ class Pipeline:
         self.config = config if config is not None else PipelineConfig()
         self.progress = progress
         self.extras = DatasetExtras.of(dataset)
-        _check_time_unit(dataset)
+        _check_frames_and_times(dataset)
         self.memory = memory  # the map this run starts inside, kept for scoring (`pipeline.truth`)
         self.system = SlamSystem(
             dataset.calibration,
@@ -112,6 +109,8 @@ class Pipeline:
             if odometry is not None
             else parts.make_odometry(_with_saved_rig(self.config, memory), dataset.calibration)
         )
+        if isinstance(self.odometry, ReplayOdometry):
+            self.odometry.check_frames(np.asarray(dataset.frame_indices))  # before any frame, not at frame 20
         self.observers = list(observers)
         self._written = False  # this run's results folder is written whole (`run`, `_finish`)
         self._previous: PreviousResults | None = None  # the earlier run's files `--overwrite` set aside
@@ -175,6 +174,11 @@ class Pipeline:
         stopped_by: DatasetError | None = None
         started, started_cpu = time.perf_counter(), time.process_time()
         record = self.record
+        # An odometry given to a second run still holds the first one's last frame: its first step would
+        # jump back to the start (a 22 m step from a replay, written as a normal trajectory).
+        reset = getattr(self.odometry, "reset", None)
+        if callable(reset):
+            reset()
         guard = OdometryGuard(self.odometry)
         front_end = FrontEnd(
             self.dataset,
@@ -645,9 +649,30 @@ def run(
     return pipeline.run(out_dir, overwrite=overwrite)
 
 
-# A camera for odometry takes an image at least this often; timestamps that advance more slowly per
-# sequence frame are in another unit (KITTI's times.txt and every loader give seconds).
-def _check_time_unit(dataset: StereoDataset) -> None:
+# What the pipeline reads of a dataset (`StereoDataset`; `__iter__` it does not need).
+_DATASET_MEMBERS = (
+    "name",
+    "calibration",
+    "frame_indices",
+    "timestamps_s",
+    "__len__",
+    "__getitem__",
+    "ground_truth",
+)
+
+
+def _check_dataset_type(dataset: object) -> None:
+    """A path or an object that is not a dataset is a TypeError naming what it lacks, not an AttributeError
+    from deep inside the run."""
+    missing = [m for m in _DATASET_MEMBERS if not hasattr(dataset, m)]
+    if isinstance(dataset, str | Path) or missing:
+        raise TypeError(
+            f"dataset must be a StereoDataset (hippo_nav.pipeline.open_input(path) opens one), got "
+            f"{type(dataset).__name__}" + (f", which lacks {', '.join(missing)}" if missing else "")
+        )
+
+
+def _check_frames_and_times(dataset: StereoDataset) -> None:
     """Any dataset's frame numbers and timestamps must be one per frame, the timestamps in seconds (a reader
     checks its own before trimming to a ground truth; a dataset made in Python is checked here)."""
     n = len(dataset)

@@ -251,7 +251,11 @@ def _cloud(moving: np.ndarray, p: TopologyParams, name: str) -> tuple[np.ndarray
     from sklearn.decomposition import PCA
 
     total = moving.sum(axis=1)
-    active = np.flatnonzero(total > p.active_fraction * np.median(total)) if total.size else total
+    # Indices, even when no time point is moving (an animal that never moved): an empty float array
+    # would not index `moving`.
+    active = (
+        np.flatnonzero(total > p.active_fraction * np.median(total)) if total.size else np.zeros(0, np.intp)
+    )
     if active.size > p.max_time_points:
         active = np.sort(active[np.argsort(total[active])[-p.max_time_points :]])
     z = moving[active]  # the one copy of the big array; standardised in place

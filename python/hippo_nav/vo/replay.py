@@ -304,6 +304,12 @@ class ReplayOdometry:
         self._previous_world_from_camera: np.ndarray | None = None
         self._previous_time_s: float | None = None
 
+    def check_frames(self, frame_indices: np.ndarray) -> None:
+        """Every frame a run will give has a pose here, or the `DatasetError` `pose_of` would raise at the
+        first that has none (a replay built for another dataset or range)."""
+        for frame in np.asarray(frame_indices).reshape(-1):
+            self.pose_of(int(frame))
+
     def pose_of(self, frame_index: int) -> np.ndarray:
         """The file's `world_from_camera` of a processed frame (by its sequence frame number)."""
         row = self._row_of_frame.get(int(frame_index))
