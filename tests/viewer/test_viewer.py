@@ -15,6 +15,7 @@ from types import SimpleNamespace
 
 import cv2
 import hippo_nav.viewer.rerun as rerun_viewer
+import hippo_nav.viewer.video as viewer_video
 import numpy as np
 import pytest
 from hippo_nav import HippoNavError, SpatialMemory
@@ -343,10 +344,10 @@ def test_a_video_that_cannot_finish_after_a_run_leaves_the_json_whole(tmp_path, 
     """The run finished and wrote its results; only the video's close failed (a full disk). A script reading
     --json still gets the results folder and the summary, with the video's error and exit 2."""
 
-    def video_fails(self) -> None:
+    def full_disk(path, mode):  # the video's last step, putting the finished file in place, fails
         raise HippoNavError("cannot write mapping.mp4: the disk is full")
 
-    monkeypatch.setattr(VideoObserver, "close", video_fails)
+    monkeypatch.setattr(viewer_video, "open_atomic", full_disk)
     out = tmp_path / "run"
     args = ["run", "--out", str(out), "--no-progress", "--no-figures", "--stop", "4", "--video"]
     assert main([*args, "--json"]) == 2
