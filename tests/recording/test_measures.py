@@ -20,7 +20,7 @@ pytest.importorskip("opexebo")
 
 from hippo_nav._core import HippoNavError
 from hippo_nav.recording import GRID_POPULATIONS, Recording
-from hippo_nav.recording.figures import write_measure_figures
+from hippo_nav.recording.figures import _score_panel, write_measure_figures
 from hippo_nav.recording.measures import (
     RecordingMeasures,
     autocorrelogram,
@@ -134,6 +134,18 @@ def test_a_field_never_floods_bins_never_visited_or_silent():
     blob[np.hypot(yy - 40, xx - 40) <= 5] = 1.0
     count, area_m2 = firing_fields(blob, 0.025)
     assert count == 1 and area_m2 == pytest.approx(int((blob > 0).sum()) * 0.025**2)
+
+
+def test_a_score_panel_of_no_finite_scores_draws_without_numpy_warnings():
+    """A 1-second session's maps have no grid score: the histogram of nothing divided by zero, and numpy's
+    warning reached the user's terminal on every short `record`."""
+    import matplotlib.pyplot as plt
+
+    figure, ax = plt.subplots()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _score_panel(ax, np.full(4, np.nan), np.full(3, np.nan), math.nan)
+    plt.close(figure)
 
 
 def test_a_negative_grid_score_never_passes_however_low_the_threshold():

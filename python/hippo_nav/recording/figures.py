@@ -222,8 +222,9 @@ def grid_score_figure(measures: RecordingMeasures) -> Figure:
             )
             _score_panel(ax, shuffled, observed, threshold)
             passing = float(getattr(population, f"fraction_passing_{angle}"))
-            # The fraction of units whose score is above the population's shuffle threshold.
-            ax.set_title(f"{name.replace('_', ' ')}, {angle}°: {passing:.0%} above {threshold:.2f}")
+            # The fraction of units whose score is above the population's shuffle threshold (and zero).
+            bar = max(threshold, 0.0) if np.isfinite(threshold) else threshold
+            ax.set_title(f"{name.replace('_', ' ')}, {angle}°: {passing:.0%} above {bar:.2f}")
             ax.set_xlabel(f"{angle}° grid score" if row == len(names) - 1 else "")
             ax.set_ylabel("density" if column == 0 else "")
     handles, labels = axes[0, 0].get_legend_handles_labels()
@@ -237,8 +238,11 @@ def _score_panel(ax: Axes, shuffled: np.ndarray, observed: np.ndarray, threshold
     low = min(-0.5, float(values.min())) if values.size else -0.5
     high = max(1.5, float(values.max())) if values.size else 1.5
     bins = np.linspace(low, high, 41)
-    ax.hist(shuffled, bins=bins, density=True, color=SHUFFLE_GREY, label="shuffled")
-    ax.hist(observed, bins=bins, density=True, color=UNIT_COLOUR, alpha=0.85, label="units")
+    # A density of no values divides by zero (numpy warns on a short session whose maps have no score).
+    if shuffled.size:
+        ax.hist(shuffled, bins=bins, density=True, color=SHUFFLE_GREY, label="shuffled")
+    if observed.size:
+        ax.hist(observed, bins=bins, density=True, color=UNIT_COLOUR, alpha=0.85, label="units")
     if np.isfinite(threshold):
         ax.axvline(threshold, color="black", ls="--", lw=0.9, label="threshold: 95th percentile of shuffles")
 
