@@ -175,9 +175,8 @@ class FrontEnd:
         image_size_px: tuple[int, int] | None = None,
     ) -> None:
         self.dataset = dataset
-        self._image_size_px = (
-            image_size_px  # (width, height) every frame's images must have (None: unchecked)
-        )
+        # (width, height) every frame's images must have (None: unchecked).
+        self._image_size_px = image_size_px
         self.odometry = odometry
         # Views are described on the loader only when the descriptor asks for it (then with the images, ahead).
         self._describe = (

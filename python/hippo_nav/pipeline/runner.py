@@ -222,27 +222,24 @@ class Pipeline:
             self._recorder.final_snapshot(self.system.engine)
         result = self._finish(out_dir, interrupted, None if stopped_by is None else str(stopped_by), signals)
         observer_failed = self._finish_observers(result, signals)
+        if stopped_by is None and observer_failed is None:
+            return result
+        where = "returned in the exception's `result`"
+        if result.out_dir is not None:
+            where = f"written to {result.out_dir}"
+        error: HippoNavError
         if stopped_by is not None:
             if observer_failed is not None:  # the frame that stopped the run is the error to report
                 log.warning("warning: %s", observer_failed)
-            where = "returned in the exception's `result`"
-            if result.out_dir is not None:
-                where = f"written to {result.out_dir}"
             if out_dir is not None and result.out_dir != out_dir:
                 where += f" (the earlier results in {out_dir} are kept)"
             error = DatasetError(
                 f"{stopped_by} — stopped there; the results of the {len(record)} frames before it are {where}"
             )
-            error.result = result  # type: ignore[attr-defined]
-            raise error
-        if observer_failed is not None:
-            where = "returned in the exception's `result`"
-            if result.out_dir is not None:
-                where = f"written to {result.out_dir}"
-            failure = ObserverError(f"{observer_failed} (the run's results are {where})")
-            failure.result = result  # type: ignore[attr-defined]
-            raise failure from observer_failed
-        return result
+        else:
+            error = ObserverError(f"{observer_failed} (the run's results are {where})")
+        error.result = result  # type: ignore[union-attr]
+        raise error from observer_failed
 
     def _finish_observers(self, result: RunResult, signals: _Signals) -> Exception | None:
         """Every observer's `on_finish`, each one even when another failed (a full disk stops a video, and
@@ -251,9 +248,8 @@ class Pipeline:
         failed: Exception | None = None
         for observer in self.observers:
             try:
-                with (
-                    signals.interruptible()
-                ):  # a viewer's flush may wait on another program: a signal cuts it
+                # A viewer's flush may wait on another program: a signal cuts it.
+                with signals.interruptible():
                     observer.on_finish(result)
             except KeyboardInterrupt:  # the results are written; only a viewer's last frame is lost
                 log.warning("the viewers' last frame interrupted; the results are written")
