@@ -186,6 +186,28 @@ def test_state_round_trip_resumes_identically():
     assert ra.place_position_m == pytest.approx(rb.place_position_m, abs=1e-4)
 
 
+def test_a_state_is_restored_only_into_a_network_lesioned_alike():
+    # Before: a lesioned network's state lesioned an intact one while its config still said intact.
+    cfg = EngineConfig.model_validate(
+        {"grid": [{"n_theta": 32, "n_nu": 5}] * N_MODULES, "place": {"n_theta": 32}}
+    )
+    lesioned = SpatialMemory(cfg)
+    lesioned.set_lesions(ventral=True, dorsal=True)
+    assert lesioned.config.lesioned == [True, False, True]
+    lesioned.step(0.3, 10.0, 0.1)
+    intact = SpatialMemory(cfg)
+    before = intact.state()
+    with pytest.raises(
+        hippo_nav.HippoNavError, match="lesions ventral, dorsal; this one has none: call set_lesions"
+    ):
+        intact.set_state(lesioned.state())
+    assert [m.lesioned for m in intact.readout().modules] == [False, False, False]
+    np.testing.assert_array_equal(intact.place_activity(), before["place"])
+    intact.set_lesions(ventral=True, dorsal=True)
+    intact.set_state(lesioned.state())
+    assert [m.lesioned for m in intact.readout().modules] == [True, False, True]
+
+
 @pytest.mark.parametrize(
     ("args", "message"),
     [

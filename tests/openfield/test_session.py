@@ -156,6 +156,24 @@ def test_a_bad_trajectory_csv_says_what_is_wrong(tmp_path, text, words):
         trajectory_from_csv(csv, 0.02)
 
 
+@pytest.mark.parametrize(
+    ("step_dt_s", "words"),
+    [
+        (0.0, "finite and > 0 s, got 0.0"),  # was numpy's "Maximum allowed size exceeded"
+        (float("nan"), "finite and > 0 s, got nan"),  # was "arange: cannot compute length"
+        (-0.02, "finite and > 0 s, got -0.02"),  # was "shorter than two steps of -0.02 s"
+        ("0.02", "a number of seconds, got '0.02'"),  # was a TypeError
+        (None, "a number of seconds, got None"),
+    ],
+)
+def test_a_bad_resampling_step_says_what_to_fix(tmp_path, step_dt_s, words):
+    csv = tmp_path / "walk.csv"
+    csv.write_text("t,x,y\n0,0,0\n1,0.5,0\n2,1,0\n")
+    with pytest.raises(HippoNavError, match=words):
+        trajectory_from_csv(csv, step_dt_s)
+    assert len(trajectory_from_csv(csv, 0.02).time_s) > 50
+
+
 def test_a_trajectory_cut_inside_its_last_number_is_named_in_the_error_it_causes(tmp_path):
     """A file cut mid-write inside its last number still parses (10.56 → 1): the jump it makes is refused
     by the networks, and the error says the file may have been cut short; a whole file is not suspected."""

@@ -270,3 +270,42 @@ def test_a_second_ctrl_c_while_finishing_never_costs_the_results(
     metrics = json.loads((out / "metrics.json").read_text())
     assert metrics["interrupted"] and metrics["interrupted_by"] == "SIGINT"
     assert read_memory(out).info["counts"]["frames"] == metrics["frames"] < 20
+
+
+def test_an_overwrite_that_cannot_move_every_file_aside_puts_back_those_it_moved(
+    first_run, monkeypatch, capsys
+):
+    """A set-aside that fails part-way (a read-only memory folder cannot be renamed) leaves the earlier run
+    whole where it was: a retry then sets it aside again rather than taking the half moved for a killed run's
+    results and removing the rest."""
+    before = _fingerprint(first_run)
+    real_rename = os.rename
+
+    def rename(src, dst):
+        if Path(src).name == "memory" and Path(dst).parent.name == PREVIOUS_RESULTS:
+            raise PermissionError(13, "Permission denied", str(src))
+        return real_rename(src, dst)
+
+    monkeypatch.setattr("hippo_nav.pipeline.results.os.rename", rename)
+    assert main(["run", "--no-progress", "--no-figures", "--out", str(first_run), "--overwrite"]) == 2
+    assert "nothing was removed" in capsys.readouterr().err
+    assert _fingerprint(first_run) == before
+    assert not (first_run / PREVIOUS_RESULTS).exists()
+    monkeypatch.setattr("hippo_nav.pipeline.results.os.rename", real_rename)
+    assert _rerun_into_itself(first_run) == 0  # the retry, once the folder can be moved
+    read_memory(first_run)
+
+
+def test_earlier_results_split_between_the_folder_and_the_set_aside_one_are_refused_not_removed(
+    first_run, capsys
+):
+    """A folder a set-aside left split (before the put-back above): its set-aside half has no metrics.json
+    while the folder still has one. Neither half is a killed run's part-written files; both are kept."""
+    aside = first_run / PREVIOUS_RESULTS
+    aside.mkdir()
+    for name in ("frames.csv", "config.json"):
+        os.rename(first_run / name, aside / name)
+    before = _fingerprint(first_run)
+    assert main(["run", "--no-progress", "--no-figures", "--out", str(first_run), "--overwrite"]) == 2
+    assert "are split" in capsys.readouterr().err
+    assert _fingerprint(first_run) == before

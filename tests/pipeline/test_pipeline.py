@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import logging
 import os
 import threading
 
@@ -237,3 +238,16 @@ def test_real_kitti_frames_run_and_write_metrics_and_figures(shared_data, tmp_pa
     for name in metrics["figures"]:
         assert (tmp_path / name).stat().st_size > 10_000, name
     assert "cognitive_map.png" in metrics["figures"] and "rate_maps.png" in metrics["figures"]
+
+
+def test_a_run_with_every_grid_module_lesioned_says_the_neural_estimate_cannot_move(demo, caplog):
+    """Inactivating the whole MEC is an experiment a lab can run, but its neural trajectory stays at the start
+    (the place cells get no grid input): the run says so up front rather than exiting 0 with a flat line."""
+    every = config_from_dict({"lesions": {"ventral": True, "intermediate": True, "dorsal": True}})
+    with caplog.at_level(logging.WARNING, logger="hippo_nav.pipeline"):
+        Pipeline(Frames(demo, 3), every)
+    assert "every grid module is lesioned" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="hippo_nav.pipeline"):
+        Pipeline(Frames(demo, 3), config_from_dict({"lesions": {"ventral": True, "intermediate": True}}))
+    assert "lesioned" not in caplog.text

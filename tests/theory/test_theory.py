@@ -334,4 +334,55 @@ def test_inputs_too_large_to_compute_are_refused_up_front():
     with pytest.raises(HippoNavError, match="bump combinations.*narrow the window"):
         product_of_modules(fine, 0.0, 10.0)
     with pytest.raises(HippoNavError, match="times spacing_m"):
-        GridModule(1e-300, 0.1).profile([0.0])
+        GridModule(1e-9, 0.1).profile([0.0])
+    with pytest.raises(HippoNavError, match="spacing_m must lie between 1e-09 and 1e\\+09 m"):
+        GridModule(1e-300, 0.1)
+
+
+def test_lengths_and_values_beyond_what_a_float_holds_are_refused_not_computed():
+    # Before: a fused width of 0 (1/σ² overflowed), ZeroDivisionError, OverflowError or NaN moments.
+    from hippo_nav.theory import field_cycle, fourier_field_sigma, fused_sigma, relative_change
+    from hippo_nav.theory.lesions import LesionWidths
+
+    for call, words in [
+        (lambda: fused_sigma([1e-200, 1e-200]), "sigmas_m must lie between"),
+        (lambda: fused_sigma([1e200, 1e200]), "sigmas_m must lie between"),
+        (lambda: fourier_field_sigma([1e-200]), "spacings_m must lie between"),
+        (lambda: field_cycle(1e300, 0.5), "offset_m must lie within"),
+        (lambda: moments([0.0, 1.0, 2.0], [1e308] * 3), "values must be at most"),
+        (lambda: moments([1e200, 2e200, 3e200], [1.0, 2.0, 1.0]), "positions_m must lie within"),
+        (
+            lambda: relative_change(LesionWidths(0.0, 1.0, 1.0, 0, 1)),
+            "LesionWidths.red_m must be finite and > 0",
+        ),
+        (lambda: measure_peak([0.0, 1.0, 2.0], [0.0, 1.0, 0.0], 1.0), "whole sample number"),  # type: ignore[arg-type]
+    ]:
+        with pytest.raises(HippoNavError, match=words):
+            call()
+    # At the range's edges the numbers are still right.
+    assert fused_sigma([1e-9, 1e-9]) == pytest.approx(1e-9 / math.sqrt(2.0))
+    assert fused_sigma([1e9, 1e9]) == pytest.approx(1e9 / math.sqrt(2.0))
+
+
+def test_a_width_or_centre_given_as_several_numbers_is_refused_not_read_as_its_first():
+    # Before: gaussian_pdf([0], 0, [1, 100]) was the density for σ = 1 and fused_peak(0, [1, 9], 1, 1) was 0.5,
+    # silently; a text width was a TypeError from math.
+    from hippo_nav.theory import fused_peak, tolerated_offset
+
+    with pytest.raises(HippoNavError, match="sigma_m must be one number, got 2 values"):
+        gaussian_pdf([0.0], 0.0, [1.0, 100.0])
+    with pytest.raises(HippoNavError, match="mean_m must be one number"):
+        gaussian_pdf([0.0], [0.0, 5.0], 1.0)
+    with pytest.raises(HippoNavError, match="ventral_sigma_m must be one number"):
+        fused_peak(0.0, [1.0, 9.0], 1.0, 1.0)
+    with pytest.raises(HippoNavError, match="bump_sigma_m must be one number"):
+        periodic_gaussian_profile([0.0, 0.1], 0.0, [0.1, 5.0], 1.0)
+    with pytest.raises(HippoNavError, match="GridModule.spacing_m must be a number, got the text"):
+        GridModule("1", 0.1)  # type: ignore[arg-type]
+    with pytest.raises(HippoNavError, match="GridModule.spacing_m must be one number"):
+        GridModule(np.array([1.0, 2.0]), 0.1)  # type: ignore[arg-type]
+    with pytest.raises(HippoNavError, match="must be a number, got the text"):
+        tolerated_offset(0.24, 0.06, 0.8, "0.5")  # type: ignore[arg-type]
+    # One number in any numpy form is that number.
+    assert GridModule(np.float32(1.0), np.array([0.1])).bump_sigma_m == pytest.approx(0.1)  # type: ignore[arg-type]
+    assert gaussian_pdf([0.0], 0.0, np.array([1.0]))[0] == pytest.approx(1.0 / math.sqrt(2.0 * math.pi))

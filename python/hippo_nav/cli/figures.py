@@ -57,6 +57,8 @@ def command(args: argparse.Namespace) -> int:
         return _run_figures(Path(args.run), args.out, args.topology)
     if args.topology:
         raise HippoNavError("--topology measures a run's recording: give --run DIR with it")
+    if args.out is not None and not str(args.out).strip():
+        raise HippoNavError("--out is empty: give the folder the figures go into (default: runs/figures)")
     out = output_folder(args.out or "runs/figures", "the PNG files")  # checked before the figures (seconds)
     try:
         if args.appearance:
@@ -66,9 +68,10 @@ def command(args: argparse.Namespace) -> int:
             return 0
         from hippo_nav.theory.figures import write_all_figures
 
-        write_all_figures(out)
+        written = write_all_figures(out)
     except OSError as err:
         raise HippoNavError(f"{err.filename or out}: {err.strerror or err}") from None
+    print(f"wrote {', '.join(p.name for p in written)} into {out}")  # as the other two modes say
     return 0
 
 

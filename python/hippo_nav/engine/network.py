@@ -9,6 +9,7 @@ Angles are radians on the neural torus/ring; positions are metres in the map fra
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
 
 import numpy as np
@@ -76,8 +77,11 @@ class SpatialMemory:
         self._net.reset(float(values[0]), (float(values[1]), float(values[2])))
 
     def set_lesions(self, ventral: bool = False, intermediate: bool = False, dorsal: bool = False) -> None:
-        """Switch grid modules off ("MEC inactivation"); a lesioned module leaves the fusion."""
-        self._net.set_lesions(_lesion_flags(ventral, intermediate, dorsal))
+        """Switch grid modules off ("MEC inactivation"); a lesioned module leaves the fusion. `config` says so
+        too (its `lesioned`), so a state saved from it is restored only into a network lesioned alike."""
+        flags = _lesion_flags(ventral, intermediate, dorsal)
+        self._net.set_lesions(flags)
+        self.config = self.config.with_lesions(*flags)
 
     def hd_activity(self) -> np.ndarray:
         """HD-by-velocity activity, shape (Nν, Nθ)."""
@@ -122,6 +126,7 @@ class SpatialMemory:
         missing = [key for key in ("hd", "grid", "place", "aux") if key not in state]
         if missing:
             raise HippoNavError(f"the network state lacks {', '.join(missing)}; give a dict made by state()")
+        _check_same_lesions(str(state["aux"]), list(self.config.lesioned))
         self._net.set_state(
             np.asarray(state["hd"], dtype=np.float64),
             [np.asarray(g, dtype=np.float64) for g in state["grid"]],
@@ -132,6 +137,26 @@ class SpatialMemory:
     @property
     def meters_per_rad(self) -> float:
         return self.config.torus_period_m / (2 * np.pi)
+
+
+def _check_same_lesions(aux_json: str, lesioned: list[bool]) -> None:
+    """A state carries its network's lesions: restoring one saved with other lesions would lesion this network
+    (or heal it) behind its config's back. Refused, naming both; a malformed `aux` is left to the engine's
+    own check, which says what is wrong with it."""
+    try:
+        saved = json.loads(aux_json).get("lesioned")
+    except (ValueError, AttributeError):
+        return
+    if isinstance(saved, list) and len(saved) == len(lesioned) and [bool(x) for x in saved] != lesioned:
+        names = ("ventral", "intermediate", "dorsal")
+
+        def shown(flags: list[bool]) -> str:
+            return ", ".join(n for n, f in zip(names, flags, strict=True) if f) or "none"
+
+        raise HippoNavError(
+            f"the state was saved from a network with lesions {shown([bool(x) for x in saved])}; this one has "
+            f"{shown(lesioned)}: call set_lesions(...) to match before set_state"
+        )
 
 
 def _lesion_flags(ventral: object, intermediate: object, dorsal: object) -> list[bool]:

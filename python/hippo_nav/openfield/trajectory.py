@@ -136,6 +136,11 @@ def trajectory_from_csv(path: str | Path, step_dt_s: float) -> Trajectory:
     (rad); resampled to `step_dt_s` by linear interpolation (headings on the circle). Without a heading,
     the direction of motion smoothed over 0.15 s is taken, as RatInABox does."""
     path = Path(path)
+    # Checked first: 0 asked numpy for an endless time axis, NaN for a length it cannot compute.
+    if isinstance(step_dt_s, bool) or not isinstance(step_dt_s, (int, float, np.integer, np.floating)):
+        raise HippoNavError(f"step_dt_s must be a number of seconds, got {step_dt_s!r}")
+    if not (math.isfinite(step_dt_s) and step_dt_s > 0.0):
+        raise HippoNavError(f"step_dt_s must be finite and > 0 s, got {step_dt_s}")
     try:
         with path.open(newline="") as f:
             reader = csv.DictReader(f)

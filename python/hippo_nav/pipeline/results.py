@@ -210,10 +210,24 @@ class PreviousResults:
     def set_aside(cls, folder: Path) -> PreviousResults:
         previous = cls(folder)
         aside = previous.aside
+        moved: list[Path] = []
         try:
             if aside.is_symlink() or (aside.exists() and not aside.is_dir()):
                 raise HippoNavError(
                     f"{aside} is not a folder a run made (a link or a file); remove it, then run again"
+                )
+            if (
+                aside.is_dir()
+                and not (aside / "metrics.json").exists()
+                and (folder / "metrics.json").exists()
+            ):
+                # Not a killed run's doing (the set-aside run would be whole, its metrics.json with it): an
+                # earlier run's files split between the two (a set-aside that stopped part-way, before this
+                # version undid it). Removing either half would lose a run.
+                raise HippoNavError(
+                    f"the earlier results in {folder} are split: some are in {aside}, metrics.json and others "
+                    f"are still in {folder}; move the files in {aside} back into {folder} (or remove what you "
+                    "do not need), then run again; nothing was removed"
                 )
             if aside.is_dir():
                 # A run was killed while writing here: the complete run before it is in `aside`; what it
@@ -231,12 +245,35 @@ class PreviousResults:
                 aside.mkdir()
                 for entry in entries:
                     os.rename(entry, aside / entry.name)
+                    moved.append(entry)
         except OSError as err:
+            # A rename failed part-way (a read-only memory folder cannot be moved: its `..` changes): the files
+            # already moved go back, so the folder is whole again and a retry does not take the half set aside
+            # for a killed run's whole results.
+            left = previous._put_back(moved)
+            where = (
+                "nothing was removed"
+                if not left
+                else f"{', '.join(p.name for p in left)} could not be moved back from {aside}: move them into "
+                f"{folder} by hand before running again"
+            )
             raise HippoNavError(
-                f"cannot set the earlier results in {folder} aside for --overwrite: {os_error_words(err)}; nothing "
-                "was removed"
+                f"cannot set the earlier results in {folder} aside for --overwrite: {os_error_words(err)}; {where}"
             ) from None
         return previous
+
+    def _put_back(self, moved: list[Path]) -> list[Path]:
+        """Undo a part-way `set_aside`: each moved entry back to its place; the set-aside folder removed when
+        empty. Returns the entries that could not be moved back."""
+        left = []
+        for entry in reversed(moved):
+            try:
+                os.rename(self.aside / entry.name, entry)
+            except OSError:
+                left.append(entry)
+        with contextlib.suppress(OSError):
+            self.aside.rmdir()
+        return left
 
     def holds_whole_run(self) -> bool:
         """The files set aside are a whole run's: some are, and their metrics.json does not say the run

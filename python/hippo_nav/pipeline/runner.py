@@ -95,6 +95,14 @@ class Pipeline:
         self.extras = DatasetExtras.of(dataset)
         _check_frames_and_times(dataset)
         self.memory = memory  # the map this run starts inside, kept for scoring (`pipeline.truth`)
+        lesions = self.config.lesions
+        if lesions.ventral and lesions.intermediate and lesions.dorsal:
+            # A lab can inactivate the whole MEC, but then the place cells get no grid input: the neural
+            # trajectory stays where it began and cannot be scored, which without this reads like a bug.
+            log.warning(
+                "every grid module is lesioned: the place cells get no grid input, so the neural estimate "
+                "(trajectory_neural) stays at its start and is not scored; the map runs on the odometry"
+            )
         self.system = SlamSystem(
             dataset.calibration,
             self.config,

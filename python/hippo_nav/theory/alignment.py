@@ -35,11 +35,11 @@ from numpy.typing import ArrayLike, NDArray
 from hippo_nav._core import HippoNavError
 from hippo_nav.theory.fields import local_maxima, measure_peak
 from hippo_nav.theory.fusion import numerical_product
-from hippo_nav.theory.profiles import GridModule, as_positive, check_finite
+from hippo_nav.theory.profiles import GridModule, as_positive_scalar, check_finite
 
 
 def _positive(value: float, name: str) -> float:
-    return float(as_positive(value, name)[0])
+    return as_positive_scalar(value, name)
 
 
 def fused_peak(

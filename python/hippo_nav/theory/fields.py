@@ -65,6 +65,8 @@ def _crossing(x: NDArray[np.float64], y: NDArray[np.float64], start: int, step: 
 def measure_peak(positions_m: ArrayLike, values: ArrayLike, index: int, baseline: float = 0.0) -> FieldPeak:
     """Position, height and half-height σ of the local maximum at sample `index`."""
     x, y = _validated(positions_m, values)
+    if isinstance(index, bool) or not isinstance(index, (int, np.integer)):
+        raise HippoNavError(f"peak index must be a whole sample number, got {index!r}")
     if not 0 < index < x.size - 1:
         raise HippoNavError(f"peak index {index} must be an interior sample (1..{x.size - 2})")
     baseline = check_finite(baseline, "baseline")

@@ -113,8 +113,14 @@ def product_of_modules(modules: Sequence[GridModule], lo_m: float, hi_m: float) 
     `_MIN_RELATIVE_EVIDENCE` of the strongest are dropped: all of them together change the product by less
     than (their count) × 1e-18 of its maximum, which is at least the strongest component's peak.
     """
+    modules = list(modules)
     if len(modules) == 0:
         raise HippoNavError("product_of_modules needs at least one grid module")
+    strangers = [type(m).__name__ for m in modules if not isinstance(m, GridModule)]
+    if strangers:
+        raise HippoNavError(
+            f"product_of_modules takes GridModule(spacing_m, bump_sigma_m) items, got {strangers}"
+        )
     lo_m, hi_m = check_finite(lo_m, "lo_m"), check_finite(hi_m, "hi_m")
     if not hi_m > lo_m:
         raise HippoNavError(f"window must have hi_m > lo_m, got [{lo_m}, {hi_m}]")
@@ -168,6 +174,9 @@ class Moments:
     sigma_m: float
 
 
+_MAX_VALUE = 1.0e100  # a density or rate this large leaves no room for its moments' products
+
+
 def moments(positions_m: ArrayLike, values: ArrayLike) -> Moments:
     """Zeroth, first and second central moments of `values` sampled at increasing `positions_m`."""
     x = as_positions(positions_m)
@@ -178,6 +187,10 @@ def moments(positions_m: ArrayLike, values: ArrayLike) -> Moments:
         raise HippoNavError("values must be finite and non-negative (a density or firing rate)")
     if np.any(np.diff(x) <= 0.0):
         raise HippoNavError("positions_m must be strictly increasing")
+    if y.max() > _MAX_VALUE:
+        raise HippoNavError(
+            f"values must be at most {_MAX_VALUE:g} (their integral overflows), got {y.max():g}"
+        )
     area = float(np.trapezoid(y, x))
     if not area > 0.0:
         raise HippoNavError("values integrate to zero: the sampled window misses the field")

@@ -32,7 +32,7 @@ from hippo_nav._core import HippoNavError
 from hippo_nav.theory.fields import field_near
 from hippo_nav.theory.fourier import fourier_field_sigma, fourier_place_field
 from hippo_nav.theory.fusion import fused_sigma, numerical_product
-from hippo_nav.theory.profiles import GridModule, as_positive
+from hippo_nav.theory.profiles import GridModule, as_positive, as_positive_scalar
 
 
 @dataclass(frozen=True)
@@ -44,6 +44,11 @@ class LesionWidths:
     yellow_m: float
     ventral_index: int
     dorsal_index: int
+
+    def __post_init__(self) -> None:
+        # Each width is a ratio's denominator somewhere (`relative_change`): 0 was a ZeroDivisionError there.
+        for name in ("red_m", "green_m", "yellow_m"):
+            as_positive_scalar(getattr(self, name), f"LesionWidths.{name}")
 
 
 def _two_or_more(sigmas_m: ArrayLike, name: str) -> NDArray[np.float64]:
