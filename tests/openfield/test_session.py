@@ -130,6 +130,10 @@ def test_a_csv_trajectory_drives_a_session(tmp_path):
     assert abs(np.angle(np.exp(1j * (traj.head_direction_rad[250] - tangent)))) < 0.1
     rec = record_session(_short(duration_s=traj.time_s[-1]), traj)
     assert np.linalg.norm(rec.decoded_position_m - rec.position_m, axis=1).max() < 0.05
+    # The trajectory sets the length: a config asking for less does not make the metadata say so.
+    shorter = record_session(_short(duration_s=1.0), traj)
+    assert shorter.time_s[-1] == pytest.approx(traj.time_s[-1], abs=0.1)
+    assert shorter.metadata["session"]["duration_s"] == pytest.approx(traj.time_s[-1] - traj.time_s[0])
 
 
 @pytest.mark.parametrize(

@@ -109,6 +109,13 @@ class SequenceConfig(ConfigSection):
         "prediction / its search radius)²: the odometry's prior against look-alikes far out in a wide region "
         "(0: every candidate in the region equal)",
     )
+    min_support: float = Field(
+        0.0,
+        ge=0.0,
+        description="nothing is measured until the best-supported drift has this much support (the votes' "
+        "weights, 1 / rank a sample, fading by 0.85 a sample): the views must agree over several samples "
+        "before a keyframe is extracted to measure them (0: measure the shortlist whatever the votes)",
+    )
     min_inliers: int = Field(
         15, ge=6, le=20000, description="PnP inliers a measurement needs (as `closure.proximity.min_inliers`)"
     )
@@ -215,6 +222,8 @@ class SequenceProposer:
         """The gated vertex nearest to where the best-supported drift puts the agent now (within `_TARGET_M`),
         then the last sample's best matches, `candidates_per_frame` in all, none measured yet this frame."""
         cfg, experience_map, store = self.config, context.experience_map, context.keyframes
+        if cfg.min_support > 0.0 and (not len(self._support) or self._support.max() < cfg.min_support):
+            return []
         gated = np.array(store.keyframed(region[0].tolist()), np.int64)
         if len(gated) == 0:
             return []

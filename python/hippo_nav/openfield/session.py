@@ -197,7 +197,11 @@ def record_session(
         metadata={
             "arena": {"shape": config.arena_shape, "size_m": config.arena_size_m},
             "trajectory": traj.source,
-            "session": json.loads(config.model_dump_json()),
+            # A given trajectory sets the session's length, whatever the config's `duration_s` said.
+            "session": {
+                **json.loads(config.model_dump_json()),
+                "duration_s": float(traj.time_s[-1] - traj.time_s[0]),
+            },
             "engine": json.loads(engine.config.to_json()),
             "landmark_cells": len(views),
             "landmark_recalls": views.recalls,
