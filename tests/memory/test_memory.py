@@ -283,9 +283,21 @@ def test_a_memory_from_before_the_keyframe_descriptor_was_recorded_is_taken_as_o
     info = json.loads(manifest.read_text())
     assert info["depends_on"].pop("closure") == {"descriptor": "sift"}
     manifest.write_text(json.dumps(info))
-    with pytest.raises(SavedMemoryError, match='made with closure[.]descriptor = "orb", this run has "sift"'):
+    with pytest.raises(
+        SavedMemoryError,
+        match='made with closure[.]descriptor = "orb", this run has "sift"',
+    ):
         run(tmp_path / "x", config=config_from_dict(QUIET), progress=False, stop=5, memory_from=old)
     assert not (tmp_path / "x").exists()
+
+
+def test_a_setting_this_run_has_no_part_for_is_named_as_missing_not_as_a_placeholder(first_lap, tmp_path):
+    """The paper's preset has no stereo keyframes: the memory's `closure.descriptor` has nothing to compare
+    with (before: 'this run has "<absent>"')."""
+    config = config_from_dict({**QUIET, "preset": "paper"})
+    with pytest.raises(SavedMemoryError, match=r"this run has no \S+ \(no such part that sets it\)") as err:
+        run(tmp_path / "x", config=config, progress=False, stop=5, memory_from=first_lap)
+    assert "<absent>" not in str(err.value)
 
 
 class _RightShifted(Frames):

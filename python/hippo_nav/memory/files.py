@@ -309,10 +309,19 @@ def check_compatible(memory: SavedMemory, now: dict[str, Any]) -> None:
         if not _same(a, b):
             raise _fail(
                 memory.folder or Path("."),
-                f"it was made with {name} = {json.dumps(a)}, this run has {json.dumps(b)}: what it stores "
+                f"it was made with {_shown(name, a, 'it was made without the part')}, this run has "
+                f"{_shown(name, b, 'no such part', named=False)}: what it stores "
                 "(view cells, network states, map) depends on that setting. Run with the saved value (its "
                 "config.json is in the results folder) or start a new map.",
             )
+
+
+def _shown(name: str, value: Any, absent: str, named: bool = True) -> str:
+    """`name = value` (`value` alone unless `named`), or, where one side lacks the setting (a part that run
+    did not have, e.g. a preset without keyframes), what that means rather than a placeholder value."""
+    if value == "<absent>":
+        return f"no {name} ({absent} that sets it)"
+    return f"{name} = {json.dumps(value)}" if named else json.dumps(value)
 
 
 def _camera(flat: dict[str, Any]) -> str:
