@@ -115,9 +115,14 @@ class FakeRay(types.ModuleType):
         return Task
 
     def wait(self, refs, num_returns=1, timeout=None):
-        done, _ = concurrent.futures.wait(
-            refs, timeout=timeout, return_when=concurrent.futures.FIRST_COMPLETED
-        )
+        try:
+            done, _ = concurrent.futures.wait(
+                refs, timeout=timeout, return_when=concurrent.futures.FIRST_COMPLETED
+            )
+        except KeyboardInterrupt:
+            # As Ray 2.60's does: a signal handler's exception inside `wait` comes out as a plain
+            # KeyboardInterrupt (`check_signals`), whatever the handler raised.
+            raise KeyboardInterrupt from None
         ready = [r for r in refs if r in done][:num_returns]
         return ready, [r for r in refs if r not in ready]
 

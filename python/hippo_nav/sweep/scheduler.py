@@ -88,9 +88,17 @@ class SweepInterrupted(KeyboardInterrupt):
         self.signame = signame
 
 
+_caught: list[str] = []
+"""The stop signals `stop_signals`' handler caught, in order: Ray's `wait` turns the `SweepInterrupted` our
+handler raises inside it into a plain KeyboardInterrupt (its `check_signals`), losing the name; a SIGTERM
+was then reported, and exited, as SIGINT (130 for 143)."""
+_depth: list[int] = []  # `stop_signals` blocks open (they nest)
+
+
 def signal_name(err: BaseException) -> str:
-    """The signal behind a KeyboardInterrupt (a plain one is Ctrl-C's SIGINT)."""
-    return getattr(err, "signame", None) or "SIGINT"
+    """The signal behind a KeyboardInterrupt: its own name, else the last one the handler caught (module
+    `_caught`), else Ctrl-C's SIGINT."""
+    return getattr(err, "signame", None) or (_caught[-1] if _caught else "SIGINT")
 
 
 def exit_status(signame: str) -> int:
@@ -109,16 +117,22 @@ def stop_signals() -> Iterator[None]:
         return
 
     def handle(signum: int, _frame: object) -> None:
-        raise SweepInterrupted(signal.Signals(signum).name)
+        name = signal.Signals(signum).name
+        _caught.append(name)
+        raise SweepInterrupted(name)
 
+    if not _depth:
+        _caught.clear()  # a new sweep: the signals an earlier one in this process caught are not its own
     previous: dict[int, Any] = {}
     for name in STOP_SIGNALS:
         number = getattr(signal, name, None)
         if number is not None and signal.getsignal(number) is not signal.SIG_IGN:
             previous[number] = signal.signal(number, handle)
+    _depth.append(1)
     try:
         yield
     finally:
+        _depth.pop()
         for number, handler in previous.items():
             signal.signal(number, signal.SIG_DFL if handler is None else handler)
 
