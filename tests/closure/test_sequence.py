@@ -209,6 +209,31 @@ def test_the_odometrys_prior_ranks_the_place_it_predicts_over_look_alikes_far_ou
     assert off_m[0.0].max() >= 40.0 and off_m[0.2].max() <= 30.0, (off_m[0.0].max(), off_m[0.2].max())
 
 
+def test_with_a_support_bar_nothing_is_measured_until_the_views_agree_over_several_samples(street_twice):
+    """`min_support`: a measurement needs this frame's keyframe (most of the proposer's cost), so none is made
+    until the votes for one drift add up; then the place is measured as without the bar."""
+    images, revisit_of = street_twice[0.0]
+
+    def first_measuring(measured):
+        return next((k for k, m in enumerate(measured) if m), None)
+
+    _, always, _, _ = _drive(images, SequenceConfig(min_support=0.0))
+    _, barred, _, _ = _drive(images, SequenceConfig(min_support=3.0))
+    _, never, _, _ = _drive(images, SequenceConfig(min_support=1e6))
+    assert first_measuring(never) is None
+    start, start_barred = first_measuring(always), first_measuring(barred)
+    assert start is not None and start_barred is not None and start_barred > start, (start, start_barred)
+    assert sum(map(len, barred)) < sum(map(len, always))
+
+    def hits(measured):
+        return np.mean(
+            [any(abs(v - revisit_of[k]) <= 1 for v in m) for k, m in enumerate(measured) if k >= start_barred]
+        )
+
+    # Over the same frames, the bar measures the place as often as measuring every frame does.
+    assert hits(barred) >= hits(always) - 0.05, (hits(barred), hits(always))
+
+
 def test_a_gap_in_the_odometry_breaks_the_sequence_until_length_views_follow_it(street_twice):
     images, revisit_of = street_twice[0.0]
     config = SequenceConfig(length=10)

@@ -27,10 +27,12 @@ region from being won by look-alikes at its edge: the score is a negative log-po
 plus the odometry's (a Gaussian whose two deviations are the radius, at the views' temperature 0.1).
 Each of them votes for a drift of the odometry (where the map has that vertex, less where the odometry puts the
 agent), weighted by its rank; votes within 4 m add up and fade by 0.85 a sample, so a drift that sample after
-sample agrees with the views outweighs the scattered look-alikes. Each frame measures, `candidates_per_frame`
-in all, the gated vertex nearest to where the best-supported drift puts the agent now, then the last sample's
-best matches in turn, at the proximity proposer's bar (`min_inliers`), confirmed by a path neighbour
-(`closure.confirm`): the views only choose what to measure; the measurement and the map's χ² check decide. An
+sample agrees with the views outweighs the scattered look-alikes. Nothing is measured until the best-supported
+drift has `min_support`: a measurement needs this frame's SIFT keyframe, most of the proposer's cost, and where
+the views agree on no drift it bought nothing (docs/results.md, "Lost loops: sequences of views"). Each frame
+measures, `candidates_per_frame` in all, the gated vertex nearest to where the best-supported drift puts the
+agent now, then the last sample's best matches in turn, at the proximity proposer's bar (`min_inliers`),
+confirmed by a path neighbour (`closure.confirm`): the views only choose what to measure; the measurement and the map's χ² check decide. An
 accepted closure (from any proposer) clears the votes: the map they were measured against has moved. Noted
 `accepted_sequence`; refused, `sequence_unconfirmed` or `sequence_disagrees` (from the confirmation) or the
 measurement's reason.
@@ -110,11 +112,12 @@ class SequenceConfig(ConfigSection):
         "(0: every candidate in the region equal)",
     )
     min_support: float = Field(
-        0.0,
+        3.0,
         ge=0.0,
         description="nothing is measured until the best-supported drift has this much support (the votes' "
-        "weights, 1 / rank a sample, fading by 0.85 a sample): the views must agree over several samples "
-        "before a keyframe is extracted to measure them (0: measure the shortlist whatever the votes)",
+        "weights, 1 / rank a sample, fading by 0.85 a sample; one sample's six best matches give 2.45): the "
+        "views must agree over several samples before a keyframe is extracted to measure them (0: measure "
+        "the shortlist whatever the votes)",
     )
     min_inliers: int = Field(
         15, ge=6, le=20000, description="PnP inliers a measurement needs (as `closure.proximity.min_inliers`)"
