@@ -162,7 +162,11 @@ def test_real_kitti_06_drifts_less_on_refined_matches(shared_data):
     for name, params in (("klt", VoParams(refine_matches=False)), ("refined", VoParams())):
         est, _ = run_odometry(data, params)
         errors[name] = relative_errors_kitti(gt, est, lengths=(10.0, 20.0, 30.0, 40.0, 50.0), step=1)
-    assert errors["refined"]["t_rel_percent"] < 1.0 < errors["klt"]["t_rel_percent"]
+    # Beats KLT by at least 5 %: the margin, not KLT's side of 1 %, is the claim. KLT's own t_rel depends on the
+    # CPU (OpenCV's kernels round differently): 1.08 % when written, 0.998 % on an AMD EPYC without AVX-512,
+    # where the refined matches gave 0.871 % (0.87×).
+    assert errors["refined"]["t_rel_percent"] < 1.0
+    assert errors["refined"]["t_rel_percent"] < 0.95 * errors["klt"]["t_rel_percent"], errors
     # r_rel: no worse (within 1 %). When written the refined matches were better (1.54 → 1.43°/100 m); with
     # OpenCV 5.0.0.93 the two are equal (1.538 and 1.542), so only "no worse" holds with both.
     assert errors["refined"]["r_rel_deg_per_100m"] < 1.01 * errors["klt"]["r_rel_deg_per_100m"]
