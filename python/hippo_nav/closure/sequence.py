@@ -32,7 +32,8 @@ drift has `min_support`: a measurement needs this frame's SIFT keyframe, most of
 the views agree on no drift it bought nothing (docs/results.md, "Lost loops: sequences of views"). Each frame
 measures, `candidates_per_frame` in all, the gated vertex nearest to where the best-supported drift puts the
 agent now, then the last sample's best matches in turn, at the proximity proposer's bar (`min_inliers`),
-confirmed by a path neighbour (`closure.confirm`): the views only choose what to measure; the measurement and the map's χ² check decide. An
+confirmed by a path neighbour (`closure.confirm`): the views only choose what to measure; the measurement and
+the map's χ² check decide. An
 accepted closure (from any proposer) clears the votes: the map they were measured against has moved. Noted
 `accepted_sequence`; refused, `sequence_unconfirmed` or `sequence_disagrees` (from the confirmation) or the
 measurement's reason.
